@@ -1,0 +1,94 @@
+//! Run-time choice of the Burn backend (`--backend ndarray|flex|wgpu`).
+
+use std::fmt;
+use std::str::FromStr;
+
+use burn::tensor::Device;
+
+/// A Burn backend that prism can run on. The backend is picked at run time through the
+/// [`Device`]; the code is the same for all of them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BackendKind {
+    /// Burn's NdArray CPU backend (deprecated upstream; the end-to-end tests run on it).
+    Ndarray,
+    /// Burn's pure-Rust Flex CPU backend, the fast CPU default.
+    #[default]
+    Flex,
+    /// The wgpu GPU backend (Vulkan, Metal, DX12); needs the `wgpu` cargo feature.
+    Wgpu,
+}
+
+impl BackendKind {
+    /// Every backend name, for help texts.
+    pub const NAMES: [&'static str; 3] = ["ndarray", "flex", "wgpu"];
+
+    /// The inference device of this backend.
+    ///
+    /// # Errors
+    /// When the backend was not compiled in (wgpu without the `wgpu` feature).
+    pub fn device(self) -> Result<Device, BackendError> {
+        match self {
+            #[allow(deprecated)]
+            Self::Ndarray => Ok(Device::ndarray()),
+            Self::Flex => Ok(Device::flex()),
+            #[cfg(feature = "wgpu")]
+            Self::Wgpu => Ok(Device::wgpu(Default::default())),
+            #[cfg(not(feature = "wgpu"))]
+            Self::Wgpu => Err(BackendError::NotCompiled("wgpu")),
+        }
+    }
+
+    /// The training device of this backend: the same device with autodiff enabled.
+    pub fn autodiff_device(self) -> Result<Device, BackendError> {
+        Ok(self.device()?.autodiff())
+    }
+}
+
+/// A backend that cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum BackendError {
+    /// The name is not a backend.
+    #[error("unknown backend `{0}` (expected one of: ndarray, flex, wgpu)")]
+    Unknown(String),
+    /// The backend exists but this build does not include it.
+    #[error("the `{0}` backend is not compiled in: rebuild with `--features {0}`")]
+    NotCompiled(&'static str),
+}
+
+impl FromStr for BackendKind {
+    type Err = BackendError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.to_ascii_lowercase().as_str() {
+            "ndarray" => Ok(Self::Ndarray),
+            "flex" => Ok(Self::Flex),
+            "wgpu" => Ok(Self::Wgpu),
+            _ => Err(BackendError::Unknown(s.to_string())),
+        }
+    }
+}
+
+impl fmt::Display for BackendKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Self::Ndarray => "ndarray",
+            Self::Flex => "flex",
+            Self::Wgpu => "wgpu",
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_round_trip_and_unknown_is_an_error() {
+        for name in BackendKind::NAMES {
+            assert_eq!(name.parse::<BackendKind>().unwrap().to_string(), name);
+        }
+        let err = "cuda9".parse::<BackendKind>().unwrap_err();
+        assert!(err.to_string().contains("cuda9"));
+    }
+}

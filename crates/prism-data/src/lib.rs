@@ -1,0 +1,16 @@
+//! Data for prism: cameras and Plücker rays, the paper's viewing protocol, the SMPL-X body
+//! model, procedural humans, the dataset format and training batches.
+//!
+//! Conventions (shared by every crate of the workspace): metres, world Y-up, subjects stand on
+//! `y = 0` facing +Z; OpenCV cameras (x right, y down, looking along +z) given by pixel
+//! intrinsics and a 4x4 camera-to-world matrix; pixel centres at `(x + 0.5, y + 0.5)`;
+//! images as `[B, 3, H, W]` tensors in [0, 1].
+
+pub mod backend;
+pub mod camera;
+pub mod protocol;
+pub mod rays;
+
+pub use camera::{Camera, Intrinsics};
+pub use protocol::{Placement, ViewAngles, ViewingProtocol};
+pub use backend::{BackendError, BackendKind};

@@ -1,0 +1,2 @@
+//! One module per subcommand group: each holds its clap arguments and a `run` that calls the
+//! library.
