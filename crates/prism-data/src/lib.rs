@@ -8,9 +8,11 @@
 
 pub mod backend;
 pub mod camera;
+pub mod mesh;
 pub mod protocol;
 pub mod rays;
 
-pub use camera::{Camera, Intrinsics};
-pub use protocol::{Placement, ViewAngles, ViewingProtocol};
 pub use backend::{BackendError, BackendKind};
+pub use camera::{Camera, Intrinsics};
+pub use mesh::Mesh;
+pub use protocol::{Placement, ViewAngles, ViewingProtocol};
