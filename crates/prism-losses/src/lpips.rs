@@ -7,9 +7,9 @@
 //!
 //! Written here rather than taken from `burn-train`'s vision metrics because (1) that feature
 //! links a downloader (the crate must have no code path that downloads) and (2) its channel
-//! normalisation `x / max(|x|, eps)` has a NaN gradient where a feature vector is all zero
-//! (`0 * d sqrt(0)`), which ReLU taps produce; here `x / sqrt(|x|^2 + eps^2)` keeps the gradient
-//! finite and changes no value measurably (eps = 1e-10).
+//! normalisation `x / max(|x|, eps)` has a NaN gradient wherever a feature vector is all zero
+//! (`0 * d sqrt(0)`), which a ReLU tap can produce; here `x / sqrt(|x|^2 + eps^2)` keeps the
+//! gradient finite and changes no value measurably (eps = 1e-10).
 
 use std::path::Path;
 
@@ -216,4 +216,32 @@ fn unit_normalise(x: Tensor<4>) -> Tensor<4> {
         .add_scalar(NORM_EPS * NORM_EPS)
         .sqrt();
     x.div(norm)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use prism_data::BackendKind;
+
+    #[test]
+    fn unit_normalisation_has_a_finite_gradient_at_zero_features() {
+        let device = BackendKind::Ndarray.device().unwrap().autodiff();
+        // Channel vectors: (3, 4) at pixel 0 and (0, 0) at pixel 1.
+        let x = Tensor::<1>::from_floats([3.0, 0.0, 4.0, 0.0], &device)
+            .reshape([1, 2, 1, 2])
+            .require_grad();
+        let unit = unit_normalise(x.clone());
+        let values = unit.clone().into_data().try_into_vec_as::<f32>().unwrap();
+        assert!((values[0] - 0.6).abs() < 1e-6 && (values[2] - 0.8).abs() < 1e-6);
+        assert_eq!((values[1], values[3]), (0.0, 0.0));
+        let weights = Tensor::<1>::from_floats([1.0, 2.0, 3.0, 4.0], &device).reshape([1, 2, 1, 2]);
+        let grads = unit.mul(weights).sum().backward();
+        let g = x.grad(&grads).unwrap().into_data().try_into_vec_as::<f32>().unwrap();
+        assert!(g.iter().all(|v| v.is_finite()), "gradient {g:?}");
+        // d/dx (x / |x|) . w at (3, 4) with w = (1, 3): (w - u (u . w)) / |x|.
+        let (u, w) = ([0.6f32, 0.8], [1.0f32, 3.0]);
+        let dot = u[0] * w[0] + u[1] * w[1];
+        assert!((g[0] - (w[0] - u[0] * dot) / 5.0).abs() < 1e-5);
+        assert!((g[2] - (w[1] - u[1] * dot) / 5.0).abs() < 1e-5);
+    }
 }
