@@ -78,3 +78,22 @@ fn ssim_of_an_image_with_itself_is_one() {
     assert_eq!(values.len(), 1);
     assert!((values[0] - 1.0).abs() < 1e-6, "SSIM(x, x) = {}", values[0]);
 }
+
+#[test]
+fn metrics_are_per_image_in_a_batch() {
+    let device = BackendKind::Ndarray.device().unwrap();
+    let dir = reference_dir();
+    let pred = load_image(&dir.join("coffee_tint_pred.png"), &device).unwrap();
+    let gt = load_image(&dir.join("coffee_tint_target.png"), &device).unwrap();
+    // Image 0: the reference pair; image 1: the target against itself plus 0.1 (PSNR 20 dB).
+    let batch_pred = burn::tensor::Tensor::cat(vec![pred.clone(), gt.clone().add_scalar(0.1)], 0);
+    let batch_gt = burn::tensor::Tensor::cat(vec![gt.clone(), gt.clone()], 0);
+    let p = prism_losses::psnr(batch_pred.clone(), batch_gt.clone());
+    let s = ssim(batch_pred, batch_gt);
+    assert_eq!((p.len(), s.len()), (2, 2));
+    assert!((p[0] - prism_losses::psnr(pred.clone(), gt.clone())[0]).abs() < 1e-9);
+    assert!((p[1] - 20.0).abs() < 1e-4, "PSNR of a 0.1 offset: {}", p[1]);
+    assert!((s[0] - ssim(pred, gt)[0]).abs() < 1e-9);
+    // Structure and contrast are unchanged by an offset; luminance drops (a dark image).
+    assert!(s[1] < 0.99 && s[1] > 0.5, "SSIM of a small offset: {}", s[1]);
+}
