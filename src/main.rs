@@ -14,11 +14,16 @@ struct Cli {
 
 /// The subcommands; each variant's arguments and `run` live in `commands/`.
 #[derive(Subcommand, Debug)]
-enum Command {}
+enum Command {
+    /// PSNR, SSIM and LPIPS of images (or folders of images) against ground truth.
+    Metrics(commands::metrics::MetricsArgs),
+}
 
 fn main() {
     let cli = Cli::parse();
-    let result: anyhow::Result<()> = match cli.command {};
+    let result: anyhow::Result<()> = match cli.command {
+        Command::Metrics(args) => args.run(),
+    };
     if let Err(err) = result {
         eprintln!("error: {err:#}");
         std::process::exit(1);

@@ -14,8 +14,11 @@ pub enum LossError {
         /// Every path that was tried, in order.
         tried: Vec<PathBuf>,
     },
+    /// `PRISM_LPIPS_WEIGHTS` names a file that does not exist.
+    #[error("PRISM_LPIPS_WEIGHTS is `{}`, which is not a file", .0.display())]
+    WeightsEnvMissing(PathBuf),
     /// The LPIPS weight file exists but does not hold the expected tensors.
-    #[error("cannot load LPIPS weights from `{path}`: {reason}")]
+    #[error("cannot load LPIPS weights from `{}`: {reason}", .path.display())]
     WeightsInvalid {
         /// The weight file.
         path: PathBuf,
@@ -23,7 +26,7 @@ pub enum LossError {
         reason: String,
     },
     /// A file could not be read or decoded as an image.
-    #[error("`{path}` is not a readable image: {reason}")]
+    #[error("`{}` is not a readable image: {reason}", .path.display())]
     NotAnImage {
         /// The offending file.
         path: PathBuf,
@@ -31,7 +34,7 @@ pub enum LossError {
         reason: String,
     },
     /// A folder could not be listed.
-    #[error("cannot list folder `{path}`: {reason}")]
+    #[error("cannot list folder `{}`: {reason}", .path.display())]
     Folder {
         /// The folder.
         path: PathBuf,
@@ -39,10 +42,10 @@ pub enum LossError {
         reason: String,
     },
     /// A path is neither a file nor a folder (or does not exist).
-    #[error("`{0}` does not exist")]
+    #[error("`{}` does not exist", .0.display())]
     Missing(PathBuf),
     /// One of `--pred`/`--gt` is a file and the other a folder.
-    #[error("`{pred}` and `{gt}` must both be image files or both be folders")]
+    #[error("`{}` and `{}` must both be image files or both be folders", .pred.display(), .gt.display())]
     KindMismatch {
         /// The prediction path.
         pred: PathBuf,
@@ -50,7 +53,10 @@ pub enum LossError {
         gt: PathBuf,
     },
     /// Two images that are compared have different sizes.
-    #[error("image sizes differ: `{pred}` is {pred_size:?} (W x H) but `{gt}` is {gt_size:?}")]
+    #[error(
+        "image sizes differ: `{}` is {}x{} but `{}` is {}x{}",
+        .pred.display(), .pred_size[0], .pred_size[1], .gt.display(), .gt_size[0], .gt_size[1]
+    )]
     SizeMismatch {
         /// The prediction.
         pred: PathBuf,
@@ -62,7 +68,7 @@ pub enum LossError {
         gt_size: [u32; 2],
     },
     /// An image is too small for SSIM (11 x 11 window) or LPIPS (AlexNet needs 31 x 31).
-    #[error("`{path}` is {width}x{height}: the metrics need images of at least {min}x{min} pixels")]
+    #[error("`{}` is {width}x{height}: the metrics need images of at least {min}x{min} pixels", .path.display())]
     TooSmall {
         /// The image.
         path: PathBuf,
@@ -77,7 +83,7 @@ pub enum LossError {
     #[error("images without a counterpart: {}", .0.join(", "))]
     MissingCounterpart(Vec<String>),
     /// A folder holds no image (png, jpg, jpeg).
-    #[error("folder `{0}` holds no image (png, jpg, jpeg)")]
+    #[error("folder `{}` holds no image (png, jpg, jpeg)", .0.display())]
     EmptyFolder(PathBuf),
     /// The objective was asked for an LPIPS term without an LPIPS network.
     #[error("the loss weights ask for LPIPS (lpips = {0}) but no LPIPS network was given")]

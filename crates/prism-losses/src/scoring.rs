@@ -186,13 +186,13 @@ pub fn score_paths(pred: &Path, gt: &Path, lpips: &Lpips, device: &Device) -> Re
             let mut unmatched: Vec<String> = pred_names
                 .iter()
                 .filter(|n| !gt_names.contains(n))
-                .map(|n| format!("{} (no `{}`)", pred.join(n).display(), gt.join(n).display()))
+                .map(|n| format!("`{}` has no `{}`", pred.join(n).display(), gt.join(n).display()))
                 .collect();
             unmatched.extend(
                 gt_names
                     .iter()
                     .filter(|n| !pred_names.contains(n))
-                    .map(|n| format!("{} (no `{}`)", gt.join(n).display(), pred.join(n).display())),
+                    .map(|n| format!("`{}` has no `{}`", gt.join(n).display(), pred.join(n).display())),
             );
             if !unmatched.is_empty() {
                 return Err(LossError::MissingCounterpart(unmatched));

@@ -26,13 +26,19 @@ pub const LPIPS_WEIGHTS_ENV: &str = "PRISM_LPIPS_WEIGHTS";
 ///    folder (for an installed binary with the file copied beside it).
 ///
 /// # Errors
-/// [`LossError::WeightsNotFound`] naming every path tried.
+/// [`LossError::WeightsNotFound`] naming every path tried, or
+/// [`LossError::WeightsEnvMissing`] when the environment variable names no file.
 pub fn find_lpips_weights(explicit: Option<&Path>) -> Result<PathBuf, LossError> {
     if let Some(path) = explicit {
         return existing(path.to_path_buf());
     }
     if let Some(value) = std::env::var_os(LPIPS_WEIGHTS_ENV).filter(|v| !v.is_empty()) {
-        return existing(PathBuf::from(value));
+        let path = PathBuf::from(value);
+        return if path.is_file() {
+            Ok(path)
+        } else {
+            Err(LossError::WeightsEnvMissing(path))
+        };
     }
     let mut tried = vec![
         Path::new("data").join(LPIPS_WEIGHTS_FILE),
