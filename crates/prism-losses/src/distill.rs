@@ -11,7 +11,11 @@ use burn::tensor::Tensor;
 /// When the lists are empty or differ in length or shapes.
 pub fn distill_loss(student: &[Tensor<3>], teacher: &[Tensor<3>]) -> Tensor<1> {
     assert!(!student.is_empty(), "L_distill: no layers");
-    assert_eq!(student.len(), teacher.len(), "L_distill: layer counts differ");
+    assert_eq!(
+        student.len(),
+        teacher.len(),
+        "L_distill: layer counts differ"
+    );
     let layers = student.len() as f64;
     student
         .iter()

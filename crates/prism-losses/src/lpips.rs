@@ -150,7 +150,11 @@ impl Lpips {
     /// When the shapes differ, there are not 3 channels, or a side is below 31.
     pub fn forward(&self, pred: Tensor<4>, gt: Tensor<4>) -> Tensor<1> {
         let [batch, channels, height, width] = pred.dims();
-        assert_eq!(pred.dims(), gt.dims(), "LPIPS: prediction and target shapes differ");
+        assert_eq!(
+            pred.dims(),
+            gt.dims(),
+            "LPIPS: prediction and target shapes differ"
+        );
         assert_eq!(channels, 3, "LPIPS: images must have 3 channels");
         assert!(
             height >= LPIPS_MIN_SIDE && width >= LPIPS_MIN_SIDE,
@@ -236,7 +240,12 @@ mod tests {
         assert_eq!((values[1], values[3]), (0.0, 0.0));
         let weights = Tensor::<1>::from_floats([1.0, 2.0, 3.0, 4.0], &device).reshape([1, 2, 1, 2]);
         let grads = unit.mul(weights).sum().backward();
-        let g = x.grad(&grads).unwrap().into_data().try_into_vec_as::<f32>().unwrap();
+        let g = x
+            .grad(&grads)
+            .unwrap()
+            .into_data()
+            .try_into_vec_as::<f32>()
+            .unwrap();
         assert!(g.iter().all(|v| v.is_finite()), "gradient {g:?}");
         // d/dx (x / |x|) . w at (3, 4) with w = (1, 3): (w - u (u . w)) / |x|.
         let (u, w) = ([0.6f32, 0.8], [1.0f32, 3.0]);

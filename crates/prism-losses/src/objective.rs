@@ -6,7 +6,7 @@ use burn::config::Config;
 use burn::tensor::Tensor;
 
 use crate::{
-    DistillInputs, Lpips, LossError, PointLoss, SmplxParams, distill_loss, point_loss, smplx_loss,
+    DistillInputs, LossError, Lpips, PointLoss, SmplxParams, distill_loss, point_loss, smplx_loss,
 };
 
 /// Weights of the objective: the `[losses]` section of the TOML configs. Defaults are the
@@ -144,7 +144,11 @@ impl LossTerms {
 
     /// Names of the computed terms, then `"total"`.
     pub fn names(&self) -> Vec<&'static str> {
-        self.terms.iter().map(|(n, _)| *n).chain(["total"]).collect()
+        self.terms
+            .iter()
+            .map(|(n, _)| *n)
+            .chain(["total"])
+            .collect()
     }
 
     /// Every term and the total read back as numbers, for logging (synchronises the device).
@@ -190,8 +194,8 @@ impl Objective {
     }
 
     /// Evaluates every term that has inputs and a nonzero weight, and the weighted total
-    /// `L = l_nvs (MSE + l_lpips LPIPS)_nvs + l_gs (MSE + l_lpips LPIPS)_gs + l_pts L_pts
-    /// + l_smplx L_smplx + l_distill L_distill`. MSE and LPIPS are means over the batch.
+    /// `L = l_nvs (MSE + l_lpips LPIPS)_nvs + l_gs (MSE + l_lpips LPIPS)_gs + l_pts L_pts +
+    /// l_smplx L_smplx + l_distill L_distill`. MSE and LPIPS are means over the batch.
     ///
     /// # Errors
     /// [`LossError::NoTerms`] when nothing was computed.
@@ -207,7 +211,10 @@ impl Objective {
             });
         };
 
-        let images = [("nvs_mse", "nvs_lpips", w.nvs, inputs.nvs), ("gs_mse", "gs_lpips", w.gs, inputs.gs)];
+        let images = [
+            ("nvs_mse", "nvs_lpips", w.nvs, inputs.nvs),
+            ("gs_mse", "gs_lpips", w.gs, inputs.gs),
+        ];
         for (mse_name, lpips_name, weight, pair) in images {
             let Some(ImagePair { pred, gt }) = pair.filter(|_| weight != 0.0) else {
                 continue;

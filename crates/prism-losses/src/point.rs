@@ -51,10 +51,22 @@ pub fn point_loss(
     alpha: f64,
 ) -> PointLoss {
     let [batch, channels, height, width] = x.dims();
-    assert_eq!(x.dims(), x_gt.dims(), "L_pts: points and targets differ in shape");
+    assert_eq!(
+        x.dims(),
+        x_gt.dims(),
+        "L_pts: points and targets differ in shape"
+    );
     assert_eq!(channels, 3, "L_pts: points must have 3 channels");
-    assert_eq!(conf.dims(), [batch, 1, height, width], "L_pts: confidence must be [B, 1, H, W]");
-    assert_eq!(mask.dims(), [batch, 1, height, width], "L_pts: mask must be [B, 1, H, W]");
+    assert_eq!(
+        conf.dims(),
+        [batch, 1, height, width],
+        "L_pts: confidence must be [B, 1, H, W]"
+    );
+    assert_eq!(
+        mask.dims(),
+        [batch, 1, height, width],
+        "L_pts: mask must be [B, 1, H, W]"
+    );
 
     let fg = mask.greater_elem(0.5).float();
     let residual = x.sub(x_gt);
@@ -122,7 +134,9 @@ fn gradient_term(r: Tensor<4>, c: Tensor<4>, m: Tensor<4>) -> Tensor<1> {
         };
         let diff = cut(r.clone(), ch, 1).sub(cut(r.clone(), ch, 0));
         let both = cut(m.clone(), 1, 1).mul(cut(m.clone(), 1, 0));
-        let c_d = cut(c.clone(), 1, 1).add(cut(c.clone(), 1, 0)).mul_scalar(0.5);
+        let c_d = cut(c.clone(), 1, 1)
+            .add(cut(c.clone(), 1, 0))
+            .mul_scalar(0.5);
         let s = diff.abs().sum_dim(1).mul(c_d).mul(both).sum();
         sum = Some(match sum {
             Some(acc) => acc.add(s),

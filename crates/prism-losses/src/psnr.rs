@@ -12,7 +12,11 @@ use burn::tensor::Tensor;
 /// # Panics
 /// When the shapes differ.
 pub fn psnr(pred: Tensor<4>, gt: Tensor<4>) -> Vec<f64> {
-    assert_eq!(pred.dims(), gt.dims(), "PSNR: prediction and target shapes differ");
+    assert_eq!(
+        pred.dims(),
+        gt.dims(),
+        "PSNR: prediction and target shapes differ"
+    );
     let [batch, ..] = pred.dims();
     let diff: Vec<f32> = pred
         .sub(gt)

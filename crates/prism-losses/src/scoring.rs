@@ -80,7 +80,11 @@ impl Scores {
                         s.psnr, s.ssim, s.lpips
                     );
                 };
-                let _ = writeln!(out, "{:<width$}  {:>10}  {:>8}  {:>8}", "image", "PSNR (dB)", "SSIM", "LPIPS");
+                let _ = writeln!(
+                    out,
+                    "{:<width$}  {:>10}  {:>8}  {:>8}",
+                    "image", "PSNR (dB)", "SSIM", "LPIPS"
+                );
                 for (name, s) in &f.images {
                     row(&mut out, name, s);
                 }
@@ -109,15 +113,16 @@ pub fn load_image(path: &Path, device: &Device) -> Result<Tensor<4>, LossError> 
         .decode()
         .map_err(|e| not_an_image(e.to_string()))?;
     let (width, height) = (decoded.width() as usize, decoded.height() as usize);
-    let interleaved: Vec<f32> = match decoded.color().bytes_per_pixel() / decoded.color().channel_count() {
-        1 => decoded
-            .to_rgb8()
-            .into_raw()
-            .into_iter()
-            .map(|v| f32::from(v) / 255.0)
-            .collect(),
-        _ => decoded.to_rgb32f().into_raw(),
-    };
+    let interleaved: Vec<f32> =
+        match decoded.color().bytes_per_pixel() / decoded.color().channel_count() {
+            1 => decoded
+                .to_rgb8()
+                .into_raw()
+                .into_iter()
+                .map(|v| f32::from(v) / 255.0)
+                .collect(),
+            _ => decoded.to_rgb32f().into_raw(),
+        };
     let data = TensorData::new(interleaved, [1, height, width, 3]);
     Ok(Tensor::<4>::from_data(data, device).permute([0, 3, 1, 2]))
 }
@@ -138,7 +143,12 @@ pub fn score_images(pred: Tensor<4>, gt: Tensor<4>, lpips: &Lpips) -> Vec<ImageS
 ///
 /// # Errors
 /// When a file is not an image, the sizes differ, or the images are too small.
-pub fn score_files(pred: &Path, gt: &Path, lpips: &Lpips, device: &Device) -> Result<ImageScores, LossError> {
+pub fn score_files(
+    pred: &Path,
+    gt: &Path,
+    lpips: &Lpips,
+    device: &Device,
+) -> Result<ImageScores, LossError> {
     let p = load_image(pred, device)?;
     let g = load_image(gt, device)?;
     let size = |t: &Tensor<4>| {
@@ -172,7 +182,12 @@ pub fn score_files(pred: &Path, gt: &Path, lpips: &Lpips, device: &Device) -> Re
 /// # Errors
 /// When a path does not exist, one is a file and the other a folder, an image has no
 /// counterpart (all are listed), a folder holds no image, or any pair fails [`score_files`].
-pub fn score_paths(pred: &Path, gt: &Path, lpips: &Lpips, device: &Device) -> Result<Scores, LossError> {
+pub fn score_paths(
+    pred: &Path,
+    gt: &Path,
+    lpips: &Lpips,
+    device: &Device,
+) -> Result<Scores, LossError> {
     for path in [pred, gt] {
         if !path.exists() {
             return Err(LossError::Missing(path.to_path_buf()));
@@ -186,13 +201,25 @@ pub fn score_paths(pred: &Path, gt: &Path, lpips: &Lpips, device: &Device) -> Re
             let mut unmatched: Vec<String> = pred_names
                 .iter()
                 .filter(|n| !gt_names.contains(n))
-                .map(|n| format!("`{}` has no `{}`", pred.join(n).display(), gt.join(n).display()))
+                .map(|n| {
+                    format!(
+                        "`{}` has no `{}`",
+                        pred.join(n).display(),
+                        gt.join(n).display()
+                    )
+                })
                 .collect();
             unmatched.extend(
                 gt_names
                     .iter()
                     .filter(|n| !pred_names.contains(n))
-                    .map(|n| format!("`{}` has no `{}`", gt.join(n).display(), pred.join(n).display())),
+                    .map(|n| {
+                        format!(
+                            "`{}` has no `{}`",
+                            gt.join(n).display(),
+                            pred.join(n).display()
+                        )
+                    }),
             );
             if !unmatched.is_empty() {
                 return Err(LossError::MissingCounterpart(unmatched));
@@ -228,10 +255,11 @@ fn image_names(dir: &Path) -> Result<Vec<String>, LossError> {
             .extension()
             .and_then(|e| e.to_str())
             .is_some_and(|e| IMAGE_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()));
-        if path.is_file() && is_image {
-            if let Some(name) = path.file_name().and_then(|n| n.to_str()) {
-                names.push(name.to_string());
-            }
+        if path.is_file()
+            && is_image
+            && let Some(name) = path.file_name().and_then(|n| n.to_str())
+        {
+            names.push(name.to_string());
         }
     }
     if names.is_empty() {

@@ -18,7 +18,12 @@ pub struct SmplxParams {
 
 impl SmplxParams {
     /// The parameters from a pose given per joint, `theta` `[B, 55, 3]`.
-    pub fn from_joint_pose(beta: Tensor<2>, theta: Tensor<3>, psi: Tensor<2>, pi: Tensor<2>) -> Self {
+    pub fn from_joint_pose(
+        beta: Tensor<2>,
+        theta: Tensor<3>,
+        psi: Tensor<2>,
+        pi: Tensor<2>,
+    ) -> Self {
         let [batch, joints, three] = theta.dims();
         Self {
             beta,
@@ -33,8 +38,8 @@ impl SmplxParams {
     }
 }
 
-/// `L_smplx = (1 / sum_b m_b) sum_b m_b (|beta_b - beta*_b|^2 + |theta_b - theta*_b|^2
-/// + |psi_b - psi*_b|^2 + |pi_b - pi*_b|^2)`: the summed squared errors of the four parameter
+/// `L_smplx = (1 / sum_b m_b) sum_b m_b (|beta_b - beta*_b|^2 + |theta_b - theta*_b|^2 +
+/// |psi_b - psi*_b|^2 + |pi_b - pi*_b|^2)`: the summed squared errors of the four parameter
 /// groups, averaged over the subjects of the batch that have a fit.
 ///
 /// `has_fit` is `[B]` with 1 for subjects with a body-model fit and 0 for those without

@@ -29,7 +29,11 @@ const C2: f32 = 0.03 * 0.03;
 /// # Panics
 /// When the shapes differ or a side is below 11.
 pub fn ssim(pred: Tensor<4>, gt: Tensor<4>) -> Vec<f64> {
-    assert_eq!(pred.dims(), gt.dims(), "SSIM: prediction and target shapes differ");
+    assert_eq!(
+        pred.dims(),
+        gt.dims(),
+        "SSIM: prediction and target shapes differ"
+    );
     let [batch, channels, height, width] = pred.dims();
     assert!(
         height >= SSIM_WINDOW && width >= SSIM_WINDOW,
@@ -63,7 +67,11 @@ pub fn ssim_map(pred: Tensor<4>, gt: Tensor<4>) -> Tensor<4> {
     );
     let filtered = gaussian_filter_valid(stack);
     let [_, _, h, w] = filtered.dims();
-    let part = |i: usize| filtered.clone().slice([i * n..(i + 1) * n, 0..1, 0..h, 0..w]);
+    let part = |i: usize| {
+        filtered
+            .clone()
+            .slice([i * n..(i + 1) * n, 0..1, 0..h, 0..w])
+    };
     let (ex, ey, exx, eyy, exy) = (part(0), part(1), part(2), part(3), part(4));
     let var_x = exx.sub(ex.clone().mul(ex.clone()));
     let var_y = eyy.sub(ey.clone().mul(ey.clone()));
@@ -90,7 +98,12 @@ fn gaussian_filter_valid(x: Tensor<4>) -> Tensor<4> {
     let device = x.device();
     let taps = gaussian_taps(&device);
     let options = || ConvOptions::new([1, 1], [0, 0], [1, 1], 1);
-    let rows = conv2d(x, taps.clone().reshape([1, 1, 1, SSIM_WINDOW]), None, options());
+    let rows = conv2d(
+        x,
+        taps.clone().reshape([1, 1, 1, SSIM_WINDOW]),
+        None,
+        options(),
+    );
     conv2d(rows, taps.reshape([1, 1, SSIM_WINDOW, 1]), None, options())
 }
 

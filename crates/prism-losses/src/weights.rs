@@ -83,7 +83,10 @@ mod tests {
     fn explicit_path_must_exist_and_is_named_in_the_error() {
         let missing = Path::new("/nonexistent/prism/lpips.safetensors");
         let err = find_lpips_weights(Some(missing)).unwrap_err();
-        assert!(err.to_string().contains("/nonexistent/prism/lpips.safetensors"));
+        assert!(
+            err.to_string()
+                .contains("/nonexistent/prism/lpips.safetensors")
+        );
         let workspace = workspace_root().join("data").join(LPIPS_WEIGHTS_FILE);
         assert_eq!(find_lpips_weights(Some(&workspace)).unwrap(), workspace);
     }

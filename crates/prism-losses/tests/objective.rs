@@ -17,8 +17,16 @@ fn scalar(t: &Tensor<1>) -> f64 {
 fn params(seed: u64, batch: usize, device: &burn::tensor::Device) -> SmplxParams {
     SmplxParams::from_joint_pose(
         tensor(uniform(seed, batch * 10, -1.0, 1.0), [batch, 10], device),
-        tensor(uniform(seed + 1, batch * 165, -1.0, 1.0), [batch, 55, 3], device),
-        tensor(uniform(seed + 2, batch * 10, -1.0, 1.0), [batch, 10], device),
+        tensor(
+            uniform(seed + 1, batch * 165, -1.0, 1.0),
+            [batch, 55, 3],
+            device,
+        ),
+        tensor(
+            uniform(seed + 2, batch * 10, -1.0, 1.0),
+            [batch, 10],
+            device,
+        ),
         tensor(uniform(seed + 3, batch * 3, -1.0, 1.0), [batch, 3], device),
     )
 }
@@ -80,7 +88,10 @@ fn distill_loss_is_the_mean_layer_mse_and_leaves_the_teacher_alone() {
     assert!((scalar(&loss) - expected).abs() < 1e-6);
     let grads = loss.backward();
     assert!(student[0].grad(&grads).is_some());
-    assert!(teacher.iter().all(|t| t.grad(&grads).is_none()), "the teacher got a gradient");
+    assert!(
+        teacher.iter().all(|t| t.grad(&grads).is_none()),
+        "the teacher got a gradient"
+    );
     assert_eq!(distill_layers(36, 6), vec![5, 11, 17, 23, 29, 35]);
     assert_eq!(distill_layers(4, 8), vec![0, 1, 2, 3]);
     assert!(distill_layers(0, 3).is_empty());
@@ -90,7 +101,15 @@ fn distill_loss_is_the_mean_layer_mse_and_leaves_the_teacher_alone() {
 fn loss_weights_default_to_the_paper_and_round_trip_through_json() {
     let w = LossWeights::new();
     assert_eq!(
-        (w.nvs, w.gs, w.pts, w.smplx, w.distill, w.lpips, w.confidence_alpha),
+        (
+            w.nvs,
+            w.gs,
+            w.pts,
+            w.smplx,
+            w.distill,
+            w.lpips,
+            w.confidence_alpha
+        ),
         (1.0, 1.0, 100.0, 1.0, 1.0, 1.0, 0.2)
     );
     let json = serde_json::to_string(&w.clone().with_pts(50.0)).unwrap();
@@ -102,9 +121,18 @@ fn loss_weights_default_to_the_paper_and_round_trip_through_json() {
 fn objective_total_is_the_weighted_sum_of_the_reported_terms() {
     let device = ndarray();
     let lpips = Lpips::load_default(None, &device).unwrap();
-    let weights = LossWeights::new().with_gs(0.5).with_lpips(0.7).with_smplx(2.0);
+    let weights = LossWeights::new()
+        .with_gs(0.5)
+        .with_lpips(0.7)
+        .with_smplx(2.0);
     let objective = Objective::new(weights.clone(), Some(lpips)).unwrap();
-    let img = |seed| tensor(uniform(seed, 2 * 3 * 32 * 32, 0.0, 1.0), [2, 3, 32, 32], &device);
+    let img = |seed| {
+        tensor(
+            uniform(seed, 2 * 3 * 32 * 32, 0.0, 1.0),
+            [2, 3, 32, 32],
+            &device,
+        )
+    };
     let (b, h, w) = (2, 8, 8);
     let n = b * h * w;
     let pts = PointInputs {
@@ -126,7 +154,15 @@ fn objective_total_is_the_weighted_sum_of_the_reported_terms() {
     let terms = objective.forward(inputs).unwrap();
     assert_eq!(
         terms.names(),
-        vec!["nvs_mse", "nvs_lpips", "gs_mse", "gs_lpips", "pts", "smplx", "total"]
+        vec![
+            "nvs_mse",
+            "nvs_lpips",
+            "gs_mse",
+            "gs_lpips",
+            "pts",
+            "smplx",
+            "total"
+        ]
     );
     assert!(terms.get("distill").is_none());
     let v = |name: &str| scalar(terms.get(name).unwrap());
@@ -141,7 +177,11 @@ fn objective_total_is_the_weighted_sum_of_the_reported_terms() {
         + 0.5 * (v("gs_mse") + 0.7 * v("gs_lpips"))
         + 100.0 * v("pts")
         + 2.0 * v("smplx");
-    assert!((v("total") - expected).abs() < 1e-4 * expected, "{} vs {expected}", v("total"));
+    assert!(
+        (v("total") - expected).abs() < 1e-4 * expected,
+        "{} vs {expected}",
+        v("total")
+    );
     let logged = terms.values();
     assert_eq!(logged.len(), 7);
     assert_eq!(logged.last().unwrap().0, "total");
@@ -152,7 +192,13 @@ fn objective_skips_zero_weights_and_reports_what_is_missing() {
     let device = ndarray();
     let no_lpips = LossWeights::new().with_lpips(0.0);
     let objective = Objective::new(no_lpips, None).unwrap();
-    let img = |seed| tensor(uniform(seed, 3 * 16 * 16, 0.0, 1.0), [1, 3, 16, 16], &device);
+    let img = |seed| {
+        tensor(
+            uniform(seed, 3 * 16 * 16, 0.0, 1.0),
+            [1, 3, 16, 16],
+            &device,
+        )
+    };
     let terms = objective
         .forward(LossInputs::new().with_nvs(img(1), img(2)))
         .unwrap();
@@ -163,18 +209,26 @@ fn objective_skips_zero_weights_and_reports_what_is_missing() {
         Objective::new(LossWeights::new(), None),
         Err(LossError::LpipsRequired(_))
     ));
-    assert!(matches!(objective.forward(LossInputs::new()), Err(LossError::NoTerms)));
+    assert!(matches!(
+        objective.forward(LossInputs::new()),
+        Err(LossError::NoTerms)
+    ));
     let student = vec![Tensor::<3>::ones([1, 2, 2], &device)];
     let teacher = vec![Tensor::<3>::zeros([1, 2, 2], &device)];
-    let only_distill = Objective::new(LossWeights::new().with_distill(0.0).with_lpips(0.0), None).unwrap();
+    let only_distill =
+        Objective::new(LossWeights::new().with_distill(0.0).with_lpips(0.0), None).unwrap();
     let result = only_distill.forward(LossInputs::new().with_distill(student, teacher));
-    assert!(matches!(result, Err(LossError::NoTerms)), "a zero-weight term is not computed");
+    assert!(
+        matches!(result, Err(LossError::NoTerms)),
+        "a zero-weight term is not computed"
+    );
 }
 
 #[test]
 fn lpips_refuses_a_file_that_is_not_its_weights() {
     let device = ndarray();
-    let json = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/reference/reference.json");
+    let json =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/reference/reference.json");
     let err = Lpips::load(&json, &device).unwrap_err();
     assert!(matches!(err, LossError::WeightsInvalid { .. }), "{err}");
     assert!(err.to_string().contains("reference.json"));

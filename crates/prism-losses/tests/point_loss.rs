@@ -8,7 +8,16 @@ use prism_losses::point_loss;
 
 /// The documented definition, with loops in f64: values indexed `[b][c][y][x]` flattened.
 #[allow(clippy::too_many_arguments)]
-fn reference(x: &[f32], gt: &[f32], conf: &[f32], mask: &[f32], b: usize, h: usize, w: usize, alpha: f64) -> (f64, f64, f64) {
+fn reference(
+    x: &[f32],
+    gt: &[f32],
+    conf: &[f32],
+    mask: &[f32],
+    b: usize,
+    h: usize,
+    w: usize,
+    alpha: f64,
+) -> (f64, f64, f64) {
     let p = |b_: usize, c: usize, y: usize, xx: usize| ((b_ * 3 + c) * h + y) * w + xx;
     let s = |b_: usize, y: usize, xx: usize| (b_ * h + y) * w + xx;
     let fg = |b_, y, xx| mask[s(b_, y, xx)] > 0.5;
@@ -48,7 +57,9 @@ fn reference(x: &[f32], gt: &[f32], conf: &[f32], mask: &[f32], b: usize, h: usi
                     for (y2, x2) in neighbours.into_iter().flatten() {
                         if fg(b_, y, xx) && fg(b_, y2, x2) {
                             let c_d = 0.5 * (cf(b_, y, xx) + cf(b_, y2, x2));
-                            let l1: f64 = (0..3).map(|c| (r(b_, c, y2, x2) - r(b_, c, y, xx)).abs()).sum();
+                            let l1: f64 = (0..3)
+                                .map(|c| (r(b_, c, y2, x2) - r(b_, c, y, xx)).abs())
+                                .sum();
                             sum += c_d * l1;
                         }
                     }
@@ -79,9 +90,16 @@ fn point_loss_matches_its_definition() {
         let (g, p, c) = reference(&x, &gt, &conf, &mask, b, h, w, 0.2);
         let got = |t: burn::tensor::Tensor<1>| f64::from(t.into_scalar::<f32>());
         let close = |a: f64, e: f64| (a - e).abs() <= 1e-5 * e.abs().max(1.0);
-        assert!(close(got(loss.gradient.clone()), g), "gradient term {:?} vs {g}", loss.gradient);
+        assert!(
+            close(got(loss.gradient.clone()), g),
+            "gradient term {:?} vs {g}",
+            loss.gradient
+        );
         assert!(close(got(loss.point.clone()), p), "point term vs {p}");
-        assert!(close(got(loss.confidence.clone()), c), "confidence term vs {c}");
+        assert!(
+            close(got(loss.confidence.clone()), c),
+            "confidence term vs {c}"
+        );
         assert!(close(got(loss.total()), g + p + c));
     }
 }
@@ -99,7 +117,9 @@ fn constant_shift_is_invisible_to_the_gradient_term_only() {
         .map(|(i, &v)| v + shift[(i / (h * w)) % 3])
         .collect();
     let conf = uniform(6, n, 1.0, 2.0);
-    let mask: Vec<f32> = (0..n).map(|i| if (i % w) > 2 { 1.0 } else { 0.0 }).collect();
+    let mask: Vec<f32> = (0..n)
+        .map(|i| if (i % w) > 2 { 1.0 } else { 0.0 })
+        .collect();
     let loss = point_loss(
         tensor(x, [b, 3, h, w], &device),
         tensor(gt, [b, 3, h, w], &device),
@@ -109,16 +129,24 @@ fn constant_shift_is_invisible_to_the_gradient_term_only() {
     );
     let gradient = loss.gradient.into_scalar::<f32>();
     let point = loss.point.into_scalar::<f32>();
-    assert!(gradient.abs() < 1e-5, "gradient term of a shifted prediction: {gradient}");
+    assert!(
+        gradient.abs() < 1e-5,
+        "gradient term of a shifted prediction: {gradient}"
+    );
     // Point term: mean over foreground of C * (0.25 + 0.5 + 0.125).
     let (sum_c, count) = conf
         .iter()
         .zip(&mask)
         .filter(|&(_, &m)| m > 0.5)
-        .fold((0.0f64, 0.0f64), |(s, k), (&c, _)| (s + f64::from(c), k + 1.0));
+        .fold((0.0f64, 0.0f64), |(s, k), (&c, _)| {
+            (s + f64::from(c), k + 1.0)
+        });
     let expected = sum_c / count * 0.875;
     assert!(point > 0.0);
-    assert!((f64::from(point) - expected).abs() < 1e-5, "point term {point} vs {expected}");
+    assert!(
+        (f64::from(point) - expected).abs() < 1e-5,
+        "point term {point} vs {expected}"
+    );
 }
 
 #[test]
@@ -141,7 +169,9 @@ fn empty_mask_gives_zero_and_background_is_ignored() {
     };
     assert_eq!(value(&x, &vec![0.0; n]), 0.0);
     // Foreground: the left half of each row; changing the right half changes nothing.
-    let mask: Vec<f32> = (0..n).map(|i| if i % w < w / 2 { 1.0 } else { 0.0 }).collect();
+    let mask: Vec<f32> = (0..n)
+        .map(|i| if i % w < w / 2 { 1.0 } else { 0.0 })
+        .collect();
     let mut moved = x.clone();
     for (i, v) in moved.iter_mut().enumerate() {
         if i % w >= w / 2 {

@@ -44,8 +44,16 @@ fn check_backend(device: &Device) {
             device,
         )
         .unwrap();
-        assert!((scores.psnr - psnr).abs() < 1e-6, "{name}: PSNR {} vs {psnr}", scores.psnr);
-        assert!((scores.ssim - ssim).abs() < 1e-4, "{name}: SSIM {} vs {ssim}", scores.ssim);
+        assert!(
+            (scores.psnr - psnr).abs() < 1e-6,
+            "{name}: PSNR {} vs {psnr}",
+            scores.psnr
+        );
+        assert!(
+            (scores.ssim - ssim).abs() < 1e-4,
+            "{name}: SSIM {} vs {ssim}",
+            scores.ssim
+        );
         assert!(
             (scores.lpips - lpips_ref).abs() < 1e-3,
             "{name}: LPIPS {} vs {lpips_ref}",
@@ -95,5 +103,9 @@ fn metrics_are_per_image_in_a_batch() {
     assert!((p[1] - 20.0).abs() < 1e-4, "PSNR of a 0.1 offset: {}", p[1]);
     assert!((s[0] - ssim(pred, gt)[0]).abs() < 1e-9);
     // Structure and contrast are unchanged by an offset; luminance drops (a dark image).
-    assert!(s[1] < 0.99 && s[1] > 0.5, "SSIM of a small offset: {}", s[1]);
+    assert!(
+        s[1] < 0.99 && s[1] > 0.5,
+        "SSIM of a small offset: {}",
+        s[1]
+    );
 }
