@@ -28,7 +28,9 @@ pub fn host<const D: usize>(t: Tensor<D>) -> Vec<f32> {
 }
 
 /// Checks the gradient `grad` of `f` at `x` against central differences along `direction`:
-/// `<grad, v>` vs `(f(x + h v) - f(x - h v)) / 2h`, relative tolerance `tol`.
+/// `<grad, v>` vs `(f(x + h v) - f(x - h v)) / 2h`, within `tol` relative to
+/// `max(|<grad, v>|, sum_i |grad_i v_i|)` (the second guards against directions along which
+/// the terms cancel, where f32 rounding of the value would dominate).
 pub fn check_directional(
     f: &dyn Fn(&[f32]) -> f64,
     x: &[f32],
@@ -50,7 +52,12 @@ pub fn check_directional(
         .zip(direction)
         .map(|(&g, &v)| f64::from(g) * f64::from(v))
         .sum();
-    let scale = analytic.abs().max(numeric.abs()).max(1e-6);
+    let magnitude: f64 = grad
+        .iter()
+        .zip(direction)
+        .map(|(&g, &v)| (f64::from(g) * f64::from(v)).abs())
+        .sum();
+    let scale = analytic.abs().max(magnitude).max(1e-6);
     assert!(
         (analytic - numeric).abs() / scale < tol,
         "{what}: analytic {analytic} vs finite difference {numeric}"
