@@ -62,5 +62,5 @@ pub fn check_directional(
         (analytic - numeric).abs() / scale < tol,
         "{what}: analytic {analytic} vs finite difference {numeric}"
     );
-    eprintln!("{what}: analytic {analytic:.6} finite difference {numeric:.6}");
+    eprintln!("{what}: analytic {analytic:.6} finite difference {numeric:.6} scale {scale:.4}");
 }
