@@ -59,14 +59,19 @@ fn bench(kind: BackendKind) {
         let gt = images([4, 3, s, s], &ad);
         let conf = images([4, 1, s, s], &ad).add_scalar(1.0).require_grad();
         let mask = images([4, 1, s, s], &ad);
-        let g = point_loss(x.clone(), gt, conf, mask, 0.2).total().backward();
+        let g = point_loss(x.clone(), gt, conf, mask, 0.2)
+            .total()
+            .backward();
         let _ = x.grad(&g).unwrap().into_data();
     });
     println!("{kind}: L_pts forward + backward, 4 x 3 x {s} x {s}: {t:.1} ms");
 }
 
 fn main() {
-    let wanted: Vec<String> = std::env::args().skip(1).filter(|a| !a.starts_with('-')).collect();
+    let wanted: Vec<String> = std::env::args()
+        .skip(1)
+        .filter(|a| !a.starts_with('-'))
+        .collect();
     for kind in [BackendKind::Flex, BackendKind::Ndarray] {
         if wanted.is_empty() || wanted.iter().any(|w| w == &kind.to_string()) {
             bench(kind);

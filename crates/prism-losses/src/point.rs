@@ -81,10 +81,14 @@ pub fn point_loss(
         .mul(fg.clone())
         .sum()
         .div(n.clone());
+    // log C on the foreground only; background pixels read C = 1 (log 0), so any value there
+    // (even 0) leaves the loss and its gradient finite.
+    let background = fg.clone().neg().add_scalar(1.0);
     let confidence = conf
         .clone()
-        .log()
         .mul(fg.clone())
+        .add(background)
+        .log()
         .sum()
         .div(n)
         .mul_scalar(-alpha);

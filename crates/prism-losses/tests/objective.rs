@@ -186,7 +186,10 @@ fn objective_total_is_the_weighted_sum_of_the_reported_terms() {
     assert_eq!(logged.len(), 7);
     assert_eq!(logged.last().unwrap().0, "total");
     for (name, value) in logged {
-        assert!((value - v(name)).abs() < 1e-6 * v(name).abs().max(1.0), "{name}");
+        assert!(
+            (value - v(name)).abs() < 1e-6 * v(name).abs().max(1.0),
+            "{name}"
+        );
     }
 }
 

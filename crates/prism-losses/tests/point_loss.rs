@@ -181,3 +181,28 @@ fn empty_mask_gives_zero_and_background_is_ignored() {
     assert_eq!(value(&x, &mask), value(&moved, &mask));
     assert!(value(&x, &mask) > 0.0);
 }
+
+#[test]
+fn zero_confidence_on_the_background_stays_finite() {
+    let ad = ndarray().autodiff();
+    let (b, h, w) = (1, 8, 8);
+    let n = b * h * w;
+    let mask: Vec<f32> = (0..n).map(|i| if i % w < 4 { 1.0 } else { 0.0 }).collect();
+    let conf: Vec<f32> = mask
+        .iter()
+        .map(|&m| if m > 0.5 { 1.5 } else { 0.0 })
+        .collect();
+    let c = tensor(conf, [b, 1, h, w], &ad).require_grad();
+    let loss = point_loss(
+        tensor(uniform(9, 3 * n, -1.0, 1.0), [b, 3, h, w], &ad),
+        tensor(uniform(10, 3 * n, -1.0, 1.0), [b, 3, h, w], &ad),
+        c.clone(),
+        tensor(mask, [b, 1, h, w], &ad),
+        0.2,
+    )
+    .total();
+    assert!(loss.clone().into_scalar::<f32>().is_finite());
+    let grads = loss.backward();
+    let g = common::host(c.grad(&grads).unwrap());
+    assert!(g.iter().all(|v| v.is_finite()), "{g:?}");
+}
