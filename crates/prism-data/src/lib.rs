@@ -8,6 +8,7 @@
 
 pub mod backend;
 pub mod camera;
+pub mod dataset;
 pub mod mesh;
 pub mod protocol;
 pub mod rays;
