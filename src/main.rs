@@ -14,11 +14,17 @@ struct Cli {
 
 /// The subcommands; each variant's arguments and `run` live in `commands/`.
 #[derive(Subcommand, Debug)]
-enum Command {}
+enum Command {
+    /// Datasets: synthesise, render from scans, validate.
+    #[command(subcommand)]
+    Data(commands::data::DataCommand),
+}
 
 fn main() {
     let cli = Cli::parse();
-    let result: anyhow::Result<()> = match cli.command {};
+    let result = match cli.command {
+        Command::Data(cmd) => cmd.run(),
+    };
     if let Err(err) = result {
         eprintln!("error: {err:#}");
         std::process::exit(1);

@@ -37,7 +37,10 @@ fn write_sphere_dataset(root: &Path, subjects: &[&str]) {
         views: 105,
         subjects: subjects.iter().map(|s| s.to_string()).collect(),
         split: Split {
-            train: subjects[..subjects.len() - 1].iter().map(|s| s.to_string()).collect(),
+            train: subjects[..subjects.len() - 1]
+                .iter()
+                .map(|s| s.to_string())
+                .collect(),
             test: vec![subjects[subjects.len() - 1].to_string()],
         },
         generator: serde_json::json!({"kind": "sphere-test"}),
@@ -53,7 +56,9 @@ fn write_sphere_dataset(root: &Path, subjects: &[&str]) {
                 Some(p) => Rgb([(p.y - 0.4).clamp(0.0, 1.0), 0.3, 0.1 * s as f32]),
                 None => Rgb([1.0, 1.0, 1.0]),
             });
-            let mask = Mask::from_fn(RES, RES, |x, y| Luma([hit(&cam, x, y).map_or(0.0, |_| 1.0)]));
+            let mask = Mask::from_fn(RES, RES, |x, y| {
+                Luma([hit(&cam, x, y).map_or(0.0, |_| 1.0)])
+            });
             w.write_view(view.index, &rgb, &mask).unwrap();
             if view.index == 0 {
                 points = Some(PointMap {
@@ -72,7 +77,8 @@ fn write_sphere_dataset(root: &Path, subjects: &[&str]) {
             height: 1.0,
         };
         let body = serde_json::json!({"betas": vec![0.0; 10]});
-        w.finish(&records, &points.unwrap(), &record, Some(&body)).unwrap();
+        w.finish(&records, &points.unwrap(), &record, Some(&body))
+            .unwrap();
     }
 }
 
@@ -88,7 +94,10 @@ fn written_dataset_checks_clean_and_loads_into_batches() {
     let train = SampleDataset::new(
         reader.clone(),
         SplitKind::Train,
-        TargetSelection::Random { count: 3, repeats: 4 },
+        TargetSelection::Random {
+            count: 3,
+            repeats: 4,
+        },
         None,
         7,
     )
@@ -108,8 +117,18 @@ fn written_dataset_checks_clean_and_loads_into_batches() {
     assert_eq!(batch.pairs.len(), 6);
     assert!(batch.bodies.iter().all(Option::is_some));
     // The source mask covers exactly the pixels with a point.
-    let mask = batch.source_mask.clone().into_data().try_into_vec::<f32>().unwrap();
-    let pts = batch.source_points.clone().into_data().try_into_vec::<f32>().unwrap();
+    let mask = batch
+        .source_mask
+        .clone()
+        .into_data()
+        .try_into_vec::<f32>()
+        .unwrap();
+    let pts = batch
+        .source_points
+        .clone()
+        .into_data()
+        .try_into_vec::<f32>()
+        .unwrap();
     let plane = 256;
     for i in 0..plane {
         let has_point = (0..3).any(|c| pts[c * plane + i] != 0.0);
@@ -117,9 +136,14 @@ fn written_dataset_checks_clean_and_loads_into_batches() {
     }
 
     // Evaluation: every view 1..=100 of the held-out subject, in order.
-    let eval =
-        SampleDataset::new(reader, SplitKind::Test, TargetSelection::Evaluation { per_sample: 4 }, Some((8, 8)), 0)
-            .unwrap();
+    let eval = SampleDataset::new(
+        reader,
+        SplitKind::Test,
+        TargetSelection::Evaluation { per_sample: 4 },
+        Some((8, 8)),
+        0,
+    )
+    .unwrap();
     assert_eq!(eval.len(), 25);
     let views: Vec<usize> = (0..25).flat_map(|i| eval.plan(i).1).collect();
     assert_eq!(views, (1..=100).collect::<Vec<_>>());
@@ -135,20 +159,34 @@ fn check_names_every_broken_file() {
     std::fs::remove_file(dir.path().join("a/rgb/017.png")).unwrap();
     std::fs::write(dir.path().join("b/mask/003.png"), b"not a png").unwrap();
     let cams = dir.path().join("b/cameras.json");
-    let mut records: Vec<CameraRecord> = serde_json::from_str(&std::fs::read_to_string(&cams).unwrap()).unwrap();
+    let mut records: Vec<CameraRecord> =
+        serde_json::from_str(&std::fs::read_to_string(&cams).unwrap()).unwrap();
     records[5].fx = -1.0;
     std::fs::write(&cams, serde_json::to_string(&records).unwrap()).unwrap();
     let report = check_dataset(dir.path());
     let text: Vec<String> = report.problems.iter().map(|p| p.to_string()).collect();
     assert_eq!(text.len(), 3, "{text:#?}");
     assert!(text[0].contains("a/rgb/017.png"), "{text:#?}");
-    assert!(text.iter().any(|t| t.contains("b/mask/003.png")), "{text:#?}");
-    assert!(text.iter().any(|t| t.contains("b/cameras.json") && t.contains("view 5")), "{text:#?}");
+    assert!(
+        text.iter().any(|t| t.contains("b/mask/003.png")),
+        "{text:#?}"
+    );
+    assert!(
+        text.iter()
+            .any(|t| t.contains("b/cameras.json") && t.contains("view 5")),
+        "{text:#?}"
+    );
 
     // Loading a sample that needs the missing file is an error naming it.
     let reader = DatasetReader::open(dir.path()).unwrap();
-    let eval = SampleDataset::new(reader, SplitKind::Train, TargetSelection::Evaluation { per_sample: 1 }, None, 0)
-        .unwrap();
+    let eval = SampleDataset::new(
+        reader,
+        SplitKind::Train,
+        TargetSelection::Evaluation { per_sample: 1 },
+        None,
+        0,
+    )
+    .unwrap();
     let err = eval.load(16).unwrap_err().to_string();
     assert!(err.contains("017.png"), "{err}");
 }
@@ -160,14 +198,20 @@ fn rerun_skips_finished_subjects_and_refuses_other_settings() {
     // A staging folder of a killed run is cleaned up when the dataset is reopened.
     std::fs::create_dir_all(dir.path().join(".partial-b")).unwrap();
     let meta: DatasetMeta =
-        serde_json::from_str(&std::fs::read_to_string(dir.path().join("dataset.json")).unwrap()).unwrap();
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("dataset.json")).unwrap())
+            .unwrap();
     let writer = DatasetWriter::open(dir.path(), meta.clone()).unwrap();
     assert!(writer.is_done("a") && writer.is_done("b"));
     assert!(!dir.path().join(".partial-b").exists());
     let mut other = meta;
     other.width = 32;
-    let err = DatasetWriter::open(dir.path(), other).unwrap_err().to_string();
-    assert!(err.contains("dataset.json") && err.contains("other settings"), "{err}");
+    let err = DatasetWriter::open(dir.path(), other)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("dataset.json") && err.contains("other settings"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -175,5 +219,9 @@ fn missing_dataset_json_is_named() {
     let dir = tempfile::tempdir().unwrap();
     let report = check_dataset(dir.path());
     assert_eq!(report.problems.len(), 1);
-    assert!(report.problems[0].path.ends_with("dataset.json"), "{:?}", report.problems);
+    assert!(
+        report.problems[0].path.ends_with("dataset.json"),
+        "{:?}",
+        report.problems
+    );
 }

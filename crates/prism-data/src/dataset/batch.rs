@@ -61,7 +61,10 @@ impl PrismBatcher {
     /// If `samples` is empty or the samples differ in resolution (one dataset gives one size).
     pub fn batch_samples(&self, samples: &[Sample], device: &Device) -> PrismBatch {
         let first = samples.first().expect("a batch needs at least one sample");
-        let (w, h) = (first.source.rgb.width() as usize, first.source.rgb.height() as usize);
+        let (w, h) = (
+            first.source.rgb.width() as usize,
+            first.source.rgb.height() as usize,
+        );
         let mut b = Buffers::default();
         let mut pairs = Vec::new();
         let mut bodies = Vec::new();

@@ -57,7 +57,12 @@ const REPROJECTION_TOLERANCE_PX: f32 = 0.01;
 pub fn check_dataset(root: &Path) -> CheckReport {
     let reader = match DatasetReader::open(root) {
         Ok(r) => r,
-        Err(e) => return CheckReport { problems: vec![e.into()], ..Default::default() },
+        Err(e) => {
+            return CheckReport {
+                problems: vec![e.into()],
+                ..Default::default()
+            };
+        }
     };
     let meta = reader.meta().clone();
     let mut problems = Vec::new();
@@ -67,20 +72,32 @@ pub fn check_dataset(root: &Path) -> CheckReport {
         if in_train == in_test {
             problems.push(Problem {
                 path: root.join(files::DATASET),
-                message: format!("subject `{name}` must be in exactly one of split.train and split.test"),
+                message: format!(
+                    "subject `{name}` must be in exactly one of split.train and split.test"
+                ),
             });
         }
     }
-    let per_subject: Vec<Vec<Problem>> =
-        meta.subjects.par_iter().map(|name| check_subject(&reader, name)).collect();
+    let per_subject: Vec<Vec<Problem>> = meta
+        .subjects
+        .par_iter()
+        .map(|name| check_subject(&reader, name))
+        .collect();
     problems.extend(per_subject.into_iter().flatten());
-    CheckReport { subjects: meta.subjects.len(), views: meta.subjects.len() * meta.views, problems }
+    CheckReport {
+        subjects: meta.subjects.len(),
+        views: meta.subjects.len() * meta.views,
+        problems,
+    }
 }
 
 fn check_subject(reader: &DatasetReader, name: &str) -> Vec<Problem> {
     let dir = reader.subject_dir(name);
     if !dir.is_dir() {
-        return vec![Problem { path: dir, message: "subject folder is missing".into() }];
+        return vec![Problem {
+            path: dir,
+            message: "subject folder is missing".into(),
+        }];
     }
     let mut problems = Vec::new();
     let cameras = match reader.cameras(name) {
@@ -94,7 +111,10 @@ fn check_subject(reader: &DatasetReader, name: &str) -> Vec<Problem> {
     if let Some(cameras) = &cameras {
         for c in cameras {
             if let Some(message) = camera_problem(c) {
-                problems.push(Problem { path: cameras_path.clone(), message: format!("view {}: {message}", c.index) });
+                problems.push(Problem {
+                    path: cameras_path.clone(),
+                    message: format!("view {}: {message}", c.index),
+                });
             }
         }
     }
@@ -128,7 +148,10 @@ fn check_subject(reader: &DatasetReader, name: &str) -> Vec<Problem> {
                 let mut centroid = Vec3::ZERO;
                 for (i, p) in map.points.iter().enumerate() {
                     let p = Vec3::from_array(*p);
-                    let (x, y) = ((i as u32 % map.width) as f32 + 0.5, (i as u32 / map.width) as f32 + 0.5);
+                    let (x, y) = (
+                        (i as u32 % map.width) as f32 + 0.5,
+                        (i as u32 / map.width) as f32 + 0.5,
+                    );
                     if !p.is_finite() {
                         non_finite += 1;
                     } else if p != Vec3::ZERO {
@@ -145,19 +168,33 @@ fn check_subject(reader: &DatasetReader, name: &str) -> Vec<Problem> {
                 }
                 let mut report = |count: usize, what: &str| {
                     if count > 0 {
-                        problems.push(Problem { path: points_path.clone(), message: format!("{count} points {what}") });
+                        problems.push(Problem {
+                            path: points_path.clone(),
+                            message: format!("{count} points {what}"),
+                        });
                     }
                 };
                 report(non_finite, "are not finite");
                 report(off_mask, "lie where the source mask is 0");
-                report(bad_reprojection, "do not reproject onto their pixel centres in the source camera");
+                report(
+                    bad_reprojection,
+                    "do not reproject onto their pixel centres in the source camera",
+                );
                 if valid == 0 {
-                    problems.push(Problem { path: points_path.clone(), message: "the point map is empty".into() });
+                    problems.push(Problem {
+                        path: points_path.clone(),
+                        message: "the point map is empty".into(),
+                    });
                 } else {
                     let centroid = centroid / valid as f32;
                     for c in cameras {
                         let (u, v, z) = c.camera().project(centroid);
-                        if z <= 0.0 || u < 0.0 || v < 0.0 || u > c.width as f32 || v > c.height as f32 {
+                        if z <= 0.0
+                            || u < 0.0
+                            || v < 0.0
+                            || u > c.width as f32
+                            || v > c.height as f32
+                        {
                             problems.push(Problem {
                                 path: cameras_path.clone(),
                                 message: format!("view {}: the subject is not in view", c.index),
@@ -174,17 +211,26 @@ fn check_subject(reader: &DatasetReader, name: &str) -> Vec<Problem> {
 /// Why a camera record is not a sane pinhole camera, if it is not.
 fn camera_problem(c: &CameraRecord) -> Option<String> {
     if !(c.fx > 0.0 && c.fy > 0.0 && c.fx.is_finite() && c.fy.is_finite()) {
-        return Some(format!("focal lengths must be positive, found fx {} fy {}", c.fx, c.fy));
+        return Some(format!(
+            "focal lengths must be positive, found fx {} fy {}",
+            c.fx, c.fy
+        ));
     }
     if c.c2w[3] != [0.0, 0.0, 0.0, 1.0] {
-        return Some(format!("the last row of c2w must be [0, 0, 0, 1], found {:?}", c.c2w[3]));
+        return Some(format!(
+            "the last row of c2w must be [0, 0, 0, 1], found {:?}",
+            c.c2w[3]
+        ));
     }
     let r = Mat3::from_cols_array_2d(&[
         [c.c2w[0][0], c.c2w[1][0], c.c2w[2][0]],
         [c.c2w[0][1], c.c2w[1][1], c.c2w[2][1]],
         [c.c2w[0][2], c.c2w[1][2], c.c2w[2][2]],
     ]);
-    let err = (r.transpose() * r - Mat3::IDENTITY).to_cols_array().iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    let err = (r.transpose() * r - Mat3::IDENTITY)
+        .to_cols_array()
+        .iter()
+        .fold(0.0f32, |m, v| m.max(v.abs()));
     if err > 1e-4 || r.determinant() < 0.0 {
         return Some("the rotation of c2w is not a proper rotation".into());
     }

@@ -42,12 +42,18 @@ pub enum DataError {
 impl DataError {
     /// An I/O error on `path`.
     pub fn io(path: impl AsRef<Path>, source: std::io::Error) -> Self {
-        Self::Io { path: path.as_ref().to_path_buf(), source }
+        Self::Io {
+            path: path.as_ref().to_path_buf(),
+            source,
+        }
     }
 
     /// A content error on `path`.
     pub fn invalid(path: impl AsRef<Path>, message: impl Into<String>) -> Self {
-        Self::Invalid { path: path.as_ref().to_path_buf(), message: message.into() }
+        Self::Invalid {
+            path: path.as_ref().to_path_buf(),
+            message: message.into(),
+        }
     }
 
     /// The file this error is about.

@@ -37,13 +37,18 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 /// Reads a JSON file into `T`.
 pub fn read_json<T: DeserializeOwned>(path: &Path) -> Result<T> {
     let text = fs::read_to_string(path).map_err(|e| DataError::io(path, e))?;
-    serde_json::from_str(&text).map_err(|source| DataError::Json { path: path.to_path_buf(), source })
+    serde_json::from_str(&text).map_err(|source| DataError::Json {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 /// Writes `value` as pretty JSON, atomically.
 pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
-    let text = serde_json::to_string_pretty(value)
-        .map_err(|source| DataError::Json { path: path.to_path_buf(), source })?;
+    let text = serde_json::to_string_pretty(value).map_err(|source| DataError::Json {
+        path: path.to_path_buf(),
+        source,
+    })?;
     write_atomic(path, text.as_bytes())
 }
 
@@ -76,8 +81,14 @@ where
 {
     let mut bytes = Vec::new();
     image
-        .write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
-        .map_err(|source| DataError::Image { path: path.to_path_buf(), source })?;
+        .write_to(
+            &mut std::io::Cursor::new(&mut bytes),
+            image::ImageFormat::Png,
+        )
+        .map_err(|source| DataError::Image {
+            path: path.to_path_buf(),
+            source,
+        })?;
     write_atomic(path, &bytes)
 }
 
@@ -85,7 +96,10 @@ where
 pub fn read_rgb(path: &Path) -> Result<Rgb32FImage> {
     let img = image::open(path).map_err(|source| match source {
         image::ImageError::IoError(e) => DataError::io(path, e),
-        source => DataError::Image { path: path.to_path_buf(), source },
+        source => DataError::Image {
+            path: path.to_path_buf(),
+            source,
+        },
     })?;
     Ok(img.to_rgb32f())
 }
@@ -94,7 +108,10 @@ pub fn read_rgb(path: &Path) -> Result<Rgb32FImage> {
 pub fn read_mask(path: &Path) -> Result<Mask> {
     let img = image::open(path).map_err(|source| match source {
         image::ImageError::IoError(e) => DataError::io(path, e),
-        source => DataError::Image { path: path.to_path_buf(), source },
+        source => DataError::Image {
+            path: path.to_path_buf(),
+            source,
+        },
     })?;
     let grey = img.to_luma32f();
     Ok(grey)
@@ -122,17 +139,30 @@ pub fn write_points(path: &Path, map: &PointMap) -> Result<()> {
 /// Reads a float32 `[H, W, 3]` `.npy` point map.
 pub fn read_points(path: &Path) -> Result<PointMap> {
     let bytes = fs::read(path).map_err(|e| DataError::io(path, e))?;
-    let npy = npyz::NpyFile::new(&bytes[..]).map_err(|e| DataError::invalid(path, format!("not a .npy file: {e}")))?;
+    let npy = npyz::NpyFile::new(&bytes[..])
+        .map_err(|e| DataError::invalid(path, format!("not a .npy file: {e}")))?;
     let shape = npy.shape().to_vec();
     if shape.len() != 3 || shape[2] != 3 {
-        return Err(DataError::invalid(path, format!("expected shape [H, W, 3], found {shape:?}")));
+        return Err(DataError::invalid(
+            path,
+            format!("expected shape [H, W, 3], found {shape:?}"),
+        ));
     }
     if npy.dtype() != npyz::DType::Plain("<f4".parse().expect("valid type string")) {
-        return Err(DataError::invalid(path, format!("expected float32 (<f4), found {:?}", npy.dtype())));
+        return Err(DataError::invalid(
+            path,
+            format!("expected float32 (<f4), found {:?}", npy.dtype()),
+        ));
     }
-    let values: Vec<f32> = npy.into_vec().map_err(|e| DataError::invalid(path, format!("unreadable data: {e}")))?;
+    let values: Vec<f32> = npy
+        .into_vec()
+        .map_err(|e| DataError::invalid(path, format!("unreadable data: {e}")))?;
     let points = values.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-    Ok(PointMap { width: shape[1] as u32, height: shape[0] as u32, points })
+    Ok(PointMap {
+        width: shape[1] as u32,
+        height: shape[0] as u32,
+        points,
+    })
 }
 
 #[cfg(test)]
@@ -142,7 +172,11 @@ mod tests {
     #[test]
     fn points_round_trip_and_bad_shapes_are_named() {
         let d = tempfile::tempdir().unwrap();
-        let map = PointMap { width: 3, height: 2, points: (0..6).map(|i| [i as f32, 0.5, -1.0]).collect() };
+        let map = PointMap {
+            width: 3,
+            height: 2,
+            points: (0..6).map(|i| [i as f32, 0.5, -1.0]).collect(),
+        };
         let path = d.path().join("p.npy");
         write_points(&path, &map).unwrap();
         assert_eq!(read_points(&path).unwrap(), map);
@@ -154,7 +188,9 @@ mod tests {
     #[test]
     fn png_round_trip_is_8_bit_exact() {
         let d = tempfile::tempdir().unwrap();
-        let img = Rgb32FImage::from_fn(4, 3, |x, y| image::Rgb([x as f32 / 3.0, y as f32 / 2.0, 0.25]));
+        let img = Rgb32FImage::from_fn(4, 3, |x, y| {
+            image::Rgb([x as f32 / 3.0, y as f32 / 2.0, 0.25])
+        });
         let path = d.path().join("a.png");
         write_rgb_png(&path, &img).unwrap();
         let back = read_rgb(&path).unwrap();
@@ -162,7 +198,9 @@ mod tests {
             assert!((a - b).abs() <= 0.5 / 255.0 + 1e-6);
         }
         assert!(!d.path().join("a.png.partial").exists());
-        let err = read_rgb(&d.path().join("missing.png")).unwrap_err().to_string();
+        let err = read_rgb(&d.path().join("missing.png"))
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("missing.png"), "{err}");
     }
 }

@@ -27,12 +27,18 @@ impl DatasetReader {
         }
         let meta: DatasetMeta = read_json(&path)?;
         if meta.format != FORMAT_NAME {
-            return Err(DataError::invalid(&path, format!("format is `{}`, expected `{FORMAT_NAME}`", meta.format)));
+            return Err(DataError::invalid(
+                &path,
+                format!("format is `{}`, expected `{FORMAT_NAME}`", meta.format),
+            ));
         }
         if meta.version != FORMAT_VERSION {
             return Err(DataError::invalid(
                 &path,
-                format!("format version {} is not supported (this prism reads version {FORMAT_VERSION})", meta.version),
+                format!(
+                    "format version {} is not supported (this prism reads version {FORMAT_VERSION})",
+                    meta.version
+                ),
             ));
         }
         if meta.width == 0 || meta.height == 0 {
@@ -40,10 +46,16 @@ impl DatasetReader {
         }
         for name in meta.split.train.iter().chain(&meta.split.test) {
             if !meta.subjects.contains(name) {
-                return Err(DataError::invalid(&path, format!("split names `{name}`, which is not in `subjects`")));
+                return Err(DataError::invalid(
+                    &path,
+                    format!("split names `{name}`, which is not in `subjects`"),
+                ));
             }
         }
-        Ok(Self { root: root.to_path_buf(), meta })
+        Ok(Self {
+            root: root.to_path_buf(),
+            meta,
+        })
     }
 
     /// The dataset's description.
@@ -77,7 +89,10 @@ impl DatasetReader {
         }
         for (i, c) in cameras.iter().enumerate() {
             if c.index != i {
-                return Err(DataError::invalid(&path, format!("entry {i} has index {}", c.index)));
+                return Err(DataError::invalid(
+                    &path,
+                    format!("entry {i} has index {}", c.index),
+                ));
             }
             if (c.width, c.height) != (self.meta.width, self.meta.height) {
                 return Err(DataError::invalid(
@@ -127,7 +142,10 @@ impl DatasetReader {
         if (width, height) != (self.meta.width, self.meta.height) {
             return Err(DataError::invalid(
                 path,
-                format!("is {width}x{height}, the dataset is {}x{}", self.meta.width, self.meta.height),
+                format!(
+                    "is {width}x{height}, the dataset is {}x{}",
+                    self.meta.width, self.meta.height
+                ),
             ));
         }
         Ok(())

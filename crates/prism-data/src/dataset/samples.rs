@@ -94,23 +94,47 @@ impl SampleDataset {
         let subjects = meta.subjects_of(split).to_vec();
         let dataset_json = reader.root().join(super::schema::files::DATASET);
         if subjects.is_empty() {
-            return Err(DataError::invalid(&dataset_json, format!("the {split:?} split has no subjects")));
+            return Err(DataError::invalid(
+                &dataset_json,
+                format!("the {split:?} split has no subjects"),
+            ));
         }
         match selection {
-            TargetSelection::Evaluation { per_sample } if per_sample == 0 || 100 % per_sample != 0 => {
-                return Err(DataError::invalid(&dataset_json, "evaluation targets per sample must divide 100"));
+            TargetSelection::Evaluation { per_sample }
+                if per_sample == 0 || 100 % per_sample != 0 =>
+            {
+                return Err(DataError::invalid(
+                    &dataset_json,
+                    "evaluation targets per sample must divide 100",
+                ));
             }
             TargetSelection::Random { count, .. } if count == 0 || count > *TRAIN_TARGETS.end() => {
-                return Err(DataError::invalid(&dataset_json, "targets per sample must be in 1..=104"));
+                return Err(DataError::invalid(
+                    &dataset_json,
+                    "targets per sample must be in 1..=104",
+                ));
             }
             _ => {}
         }
         if meta.views <= *TRAIN_TARGETS.end() {
-            return Err(DataError::invalid(&dataset_json, format!("{} views per subject, 105 needed", meta.views)));
+            return Err(DataError::invalid(
+                &dataset_json,
+                format!("{} views per subject, 105 needed", meta.views),
+            ));
         }
-        let cameras = subjects.iter().map(|s| reader.cameras(s)).collect::<Result<Vec<_>>>()?;
+        let cameras = subjects
+            .iter()
+            .map(|s| reader.cameras(s))
+            .collect::<Result<Vec<_>>>()?;
         let size = size.unwrap_or((meta.width, meta.height));
-        Ok(Self { reader, subjects, cameras, selection, size, seed })
+        Ok(Self {
+            reader,
+            subjects,
+            cameras,
+            selection,
+            size,
+            seed,
+        })
     }
 
     /// The subjects of this split.
@@ -123,9 +147,14 @@ impl SampleDataset {
         let n = self.subjects.len();
         match self.selection {
             TargetSelection::Random { count, .. } => {
-                let mut rng = ChaCha8Rng::seed_from_u64(self.seed ^ (index as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
+                let mut rng = ChaCha8Rng::seed_from_u64(
+                    self.seed ^ (index as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15),
+                );
                 let pool: Vec<usize> = TRAIN_TARGETS.collect();
-                let picks = sample(&mut rng, pool.len(), count).into_iter().map(|i| pool[i]).collect();
+                let picks = sample(&mut rng, pool.len(), count)
+                    .into_iter()
+                    .map(|i| pool[i])
+                    .collect();
                 (index % n, picks)
             }
             TargetSelection::Evaluation { per_sample } => {
@@ -141,7 +170,11 @@ impl SampleDataset {
         let (subject_index, targets) = self.plan(index);
         let subject = &self.subjects[subject_index];
         let body_path = self.reader.body_path(subject);
-        let body = if body_path.exists() { Some(super::io::read_json(&body_path)?) } else { None };
+        let body = if body_path.exists() {
+            Some(super::io::read_json(&body_path)?)
+        } else {
+            None
+        };
         let mut points = self.reader.points(subject)?;
         if (points.width, points.height) != self.size {
             points = resize_points(&points, self.size);
@@ -149,7 +182,10 @@ impl SampleDataset {
         Ok(Sample {
             subject: subject.clone(),
             source: self.load_view(subject_index, SOURCE_VIEW)?,
-            targets: targets.into_iter().map(|t| self.load_view(subject_index, t)).collect::<Result<_>>()?,
+            targets: targets
+                .into_iter()
+                .map(|t| self.load_view(subject_index, t))
+                .collect::<Result<_>>()?,
             points,
             body,
         })
@@ -162,7 +198,10 @@ impl SampleDataset {
         let (rgb, mask) = if (rgb.width(), rgb.height()) == (w, h) {
             (rgb, mask)
         } else {
-            (resize(&rgb, w, h, FilterType::Triangle), resize(&mask, w, h, FilterType::Triangle))
+            (
+                resize(&rgb, w, h, FilterType::Triangle),
+                resize(&mask, w, h, FilterType::Triangle),
+            )
         };
         Ok(View {
             index,
@@ -188,7 +227,11 @@ pub fn resize_points(map: &PointMap, (w, h): (u32, u32)) -> PointMap {
             points.push(map.points[(src_y * map.width + src_x) as usize]);
         }
     }
-    PointMap { width: w, height: h, points }
+    PointMap {
+        width: w,
+        height: h,
+        points,
+    }
 }
 
 impl Dataset<Sample> for SampleDataset {
@@ -205,7 +248,9 @@ impl Dataset<Sample> for SampleDataset {
     fn len(&self) -> usize {
         match self.selection {
             TargetSelection::Random { repeats, .. } => self.subjects.len() * repeats,
-            TargetSelection::Evaluation { per_sample } => self.subjects.len() * (EVAL_TARGETS.count() / per_sample),
+            TargetSelection::Evaluation { per_sample } => {
+                self.subjects.len() * (EVAL_TARGETS.count() / per_sample)
+            }
         }
     }
 }

@@ -9,7 +9,9 @@ use image::Rgb32FImage;
 use serde::Serialize;
 
 use super::error::{DataError, Result};
-use super::io::{Mask, PointMap, read_json, write_json, write_mask_png, write_points, write_rgb_png};
+use super::io::{
+    Mask, PointMap, read_json, write_json, write_mask_png, write_points, write_rgb_png,
+};
 use super::schema::{CameraRecord, DatasetMeta, SubjectRecord, files};
 
 /// Prefix of the staging folder of a subject being written.
@@ -47,11 +49,18 @@ impl DatasetWriter {
         }
         for entry in fs::read_dir(root).map_err(|e| DataError::io(root, e))? {
             let entry = entry.map_err(|e| DataError::io(root, e))?;
-            if entry.file_name().to_string_lossy().starts_with(STAGING_PREFIX) {
+            if entry
+                .file_name()
+                .to_string_lossy()
+                .starts_with(STAGING_PREFIX)
+            {
                 fs::remove_dir_all(entry.path()).map_err(|e| DataError::io(entry.path(), e))?;
             }
         }
-        Ok(Self { root: root.to_path_buf(), meta })
+        Ok(Self {
+            root: root.to_path_buf(),
+            meta,
+        })
     }
 
     /// The dataset's description.
@@ -79,7 +88,10 @@ impl DatasetWriter {
             let dir = staging.join(sub);
             fs::create_dir_all(&dir).map_err(|e| DataError::io(&dir, e))?;
         }
-        Ok(SubjectWriter { staging, target: self.root.join(name) })
+        Ok(SubjectWriter {
+            staging,
+            target: self.root.join(name),
+        })
     }
 }
 
@@ -96,7 +108,10 @@ impl SubjectWriter {
     /// Writes view `index`'s RGB image and alpha mask. Safe to call from several threads.
     pub fn write_view(&self, index: usize, rgb: &Rgb32FImage, mask: &Mask) -> Result<()> {
         write_rgb_png(&self.staging.join(files::view_png(files::RGB, index)), rgb)?;
-        write_mask_png(&self.staging.join(files::view_png(files::MASK, index)), mask)
+        write_mask_png(
+            &self.staging.join(files::view_png(files::MASK, index)),
+            mask,
+        )
     }
 
     /// Writes the cameras, the source point map, the subject record and the optional body fit,
