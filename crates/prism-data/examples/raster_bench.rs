@@ -72,7 +72,7 @@ fn main() {
         mesh.triangles.len(),
         rayon::current_num_threads()
     );
-    let mut time = |mesh: &Mesh, label: &str| {
+    let time = |mesh: &Mesh, label: &str| {
         let cam = protocol.camera(&views[1], k);
         render(mesh, &cam, &options).expect("valid mesh");
         let start = Instant::now();
@@ -87,7 +87,10 @@ fn main() {
         }
         let ms = start.elapsed().as_secs_f64() * 1e3 / runs as f64;
         let fraction = covered as f64 / (runs as f64 * (res * res) as f64);
-        println!("{label}: {ms:.1} ms per view ({:.0}% of pixels covered)", 100.0 * fraction);
+        println!(
+            "{label}: {ms:.1} ms per view ({:.0}% of pixels covered)",
+            100.0 * fraction
+        );
     };
     time(&mesh, "vertex colours");
     let n = 4096;
