@@ -245,9 +245,10 @@ impl SelfAttention {
             .forward(x)
             .reshape([batch, tokens, 3, self.heads, head_dim])
             .permute([2, 0, 3, 1, 4]);
-        let mut parts = qkv.chunk(3, 0).into_iter().map(|t| {
-            t.reshape([batch, self.heads, tokens, head_dim])
-        });
+        let mut parts = qkv
+            .chunk(3, 0)
+            .into_iter()
+            .map(|t| t.reshape([batch, self.heads, tokens, head_dim]));
         let (q, k, v) = (
             parts.next().expect("q"),
             parts.next().expect("k"),
@@ -297,10 +298,18 @@ mod tests {
     }
 
     /// The explicit quadratic form `phi(Q) phi(K)^T V / (phi(Q) phi(K)^T 1 + eps)`, on the host.
-    fn linear_reference(q: &[f32], k: &[f32], v: &[f32], phi: fn(f32) -> f32, eps: f64) -> Vec<f32> {
+    fn linear_reference(
+        q: &[f32],
+        k: &[f32],
+        v: &[f32],
+        phi: fn(f32) -> f32,
+        eps: f64,
+    ) -> Vec<f32> {
         let [b, h, t, dh] = SHAPE;
-        let (pq, pk): (Vec<f32>, Vec<f32>) =
-            (q.iter().map(|&x| phi(x)).collect(), k.iter().map(|&x| phi(x)).collect());
+        let (pq, pk): (Vec<f32>, Vec<f32>) = (
+            q.iter().map(|&x| phi(x)).collect(),
+            k.iter().map(|&x| phi(x)).collect(),
+        );
         let mut out = vec![0.0; q.len()];
         for bh in 0..b * h {
             let (qr, kr, vr) = (rows(&pq, bh), rows(&pk, bh), rows(v, bh));
@@ -323,8 +332,9 @@ mod tests {
         for bh in 0..b * h {
             let (qr, kr, vr) = (rows(q, bh), rows(k, bh), rows(v, bh));
             for i in 0..t {
-                let scores: Vec<f64> =
-                    (0..t).map(|j| dot(qr(i), kr(j)) / (dh as f64).sqrt()).collect();
+                let scores: Vec<f64> = (0..t)
+                    .map(|j| dot(qr(i), kr(j)) / (dh as f64).sqrt())
+                    .collect();
                 let top = scores.iter().cloned().fold(f64::MIN, f64::max);
                 let exp: Vec<f64> = scores.iter().map(|s| (s - top).exp()).collect();
                 let sum: f64 = exp.iter().sum();
@@ -369,7 +379,11 @@ mod tests {
         let track = |x: &Tensor<4>| Tensor::<4>::from_data(x.to_data(), &ad).require_grad();
         let tracked = softmax_attention(track(&q), track(&k), track(&v));
         assert!(tracked.is_tracked());
-        for (name, got) in [("fused", fused), ("softmax", decomposed), ("autodiff", tracked)] {
+        for (name, got) in [
+            ("fused", fused),
+            ("softmax", decomposed),
+            ("autodiff", tracked),
+        ] {
             let err = max_abs_diff(&values(&got), &want);
             assert!(err < 1e-5, "{name}: max error {err}");
         }

@@ -50,12 +50,7 @@ pub fn bench_forward(
     let source_rays = Tensor::<4>::random([1, 6, res, res], Distribution::Default, device);
     let target_rays = Tensor::<4>::random([1, 6, res, res], Distribution::Default, device);
     let run = || {
-        let out = model.forward(
-            image.clone(),
-            source_rays.clone(),
-            target_rays.clone(),
-            &[],
-        );
+        let out = model.forward(image.clone(), source_rays.clone(), target_rays.clone(), &[]);
         // Waits for the result: reading it back forces lazy backends to execute.
         let _ = out.image.into_data();
         let _ = device.sync();

@@ -303,3 +303,154 @@ fn describe_toml_error(text: &str, err: &toml::de::Error) -> String {
         _ => format!("line {line}: {message}"),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::distill::DistillLayers;
+    use std::path::PathBuf;
+
+    fn configs_dir() -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs")
+    }
+
+    const TINY_MODEL: &str = r#"
+[model]
+width = 64
+heads = 4
+patch_size = 8
+stage_one_blocks = 2
+stage_three_blocks = 4
+resolution = 64
+mlp_ratio = 4
+attention = "full"
+linear_feature_map = "relu"
+linear_eps = 1e-6
+init_std = 0.02
+norm_eps = 1e-5
+
+[distill]
+group_size = 3
+start = 1
+interval = 1
+layers = 2
+"#;
+
+    fn parse(text: &str) -> Result<ModelConfigFile, ModelError> {
+        parse_config(text, Path::new("test.toml"))
+    }
+
+    #[test]
+    fn shipped_configs_load() {
+        for (name, width, blocks, resolution) in [
+            ("tiny", 64, 6, 64),
+            ("small", 128, 12, 128),
+            ("paper", 768, 36, 512),
+        ] {
+            let file = load_config(configs_dir().join(format!("{name}.toml"))).unwrap();
+            assert_eq!(file.model.width, width, "{name}");
+            assert_eq!(file.model.num_blocks(), blocks, "{name}");
+            assert_eq!(file.model.resolution, resolution, "{name}");
+            assert_eq!(
+                file.model.attention_kinds().unwrap(),
+                vec![AttentionKind::Full; blocks]
+            );
+        }
+        let paper = load_config(configs_dir().join("paper.toml")).unwrap();
+        assert_eq!(
+            (paper.model.heads, paper.model.patch_size),
+            (12, 8),
+            "paper: 12 heads, patch 8"
+        );
+        assert_eq!(
+            (paper.model.stage_one_blocks, paper.model.stage_three_blocks),
+            (12, 24)
+        );
+        assert_eq!(
+            (
+                paper.distill.group_size,
+                paper.distill.start,
+                paper.distill.interval
+            ),
+            (6, 5000, 5000)
+        );
+    }
+
+    #[test]
+    fn unknown_sections_are_ignored() {
+        let text = format!(
+            "[losses]\nnvs = 1.0\n\n[train]\nsteps = 10\nlr = 1e-4\n{TINY_MODEL}\n[data]\nroot = \"x\"\n"
+        );
+        let file = parse(&text).unwrap();
+        assert_eq!(file.model.heads, 4);
+        assert_eq!(file.distill.layers, DistillLayers::Count(2));
+    }
+
+    #[test]
+    fn attention_patterns_in_every_form() {
+        let with = |value: &str| TINY_MODEL.replace("attention = \"full\"", value);
+        let kinds = |value: &str| {
+            parse(&with(value))
+                .unwrap()
+                .model
+                .attention_kinds()
+                .unwrap()
+        };
+        use AttentionKind::{Full as F, Linear as L};
+        assert_eq!(kinds("attention = \"linear\""), vec![L; 6]);
+        assert_eq!(kinds("attention = \"LLF LLF\""), vec![L, L, F, L, L, F]);
+        assert_eq!(
+            kinds("attention = [\"full\", \"linear\", \"full\", \"linear\", \"full\", \"linear\"]"),
+            vec![F, L, F, L, F, L]
+        );
+        let err = parse(&with("attention = \"LLF\"")).unwrap_err().to_string();
+        assert!(
+            err.contains("test.toml") && err.contains("model.attention"),
+            "{err}"
+        );
+        let err = parse(&with("attention = \"LXF\"")).unwrap_err().to_string();
+        assert!(err.contains("test.toml") && err.contains("`X`"), "{err}");
+        // The compact form round-trips through serde (checkpoints store configs as JSON).
+        let model = parse(&with("attention = \"LFLFLF\"")).unwrap().model;
+        let json = serde_json::to_string(&model).unwrap();
+        assert!(json.contains("\"LFLFLF\""), "{json}");
+        let back: PrismConfig = serde_json::from_str(&json).unwrap();
+        assert_eq!(back.attention, model.attention);
+    }
+
+    #[test]
+    fn errors_name_the_file_and_the_field() {
+        let missing = TINY_MODEL.replace("heads = 4\n", "");
+        let err = parse(&missing).unwrap_err().to_string();
+        assert!(err.starts_with("test.toml"), "{err}");
+        assert!(err.contains("heads") && err.contains("[model]"), "{err}");
+
+        let mistyped = TINY_MODEL.replace("heads = 4", "heads = \"four\"");
+        let err = parse(&mistyped).unwrap_err().to_string();
+        assert!(err.contains("test.toml") && err.contains("line 4"), "{err}");
+
+        let indivisible = TINY_MODEL.replace("heads = 4", "heads = 5");
+        let err = parse(&indivisible).unwrap_err().to_string();
+        assert!(
+            err.contains("test.toml") && err.contains("model.heads"),
+            "{err}"
+        );
+
+        let bad_res = TINY_MODEL.replace("resolution = 64", "resolution = 60");
+        let err = parse(&bad_res).unwrap_err().to_string();
+        assert!(err.contains("model.resolution"), "{err}");
+
+        let bad_group = TINY_MODEL.replace("group_size = 3", "group_size = 0");
+        let err = parse(&bad_group).unwrap_err().to_string();
+        assert!(err.contains("distill.group_size"), "{err}");
+
+        let no_distill = TINY_MODEL.split("[distill]").next().unwrap().to_string();
+        let err = parse(&no_distill).unwrap_err().to_string();
+        assert!(err.contains("distill"), "{err}");
+
+        let err = load_config("/nonexistent/prism.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("/nonexistent/prism.toml"), "{err}");
+    }
+}

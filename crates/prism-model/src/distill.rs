@@ -187,3 +187,108 @@ pub fn progressive_schedule(
         })
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn paper() -> DistillConfig {
+        DistillConfig::new()
+    }
+
+    fn count_linear(kinds: &[AttentionKind]) -> usize {
+        kinds
+            .iter()
+            .filter(|&&k| k == AttentionKind::Linear)
+            .count()
+    }
+
+    #[test]
+    fn paper_schedule_switches_one_block_per_group_every_interval() {
+        let config = paper();
+        for (step, want) in [
+            (0, 0),
+            (4999, 0),
+            (5000, 6),
+            (9999, 6),
+            (10_000, 12),
+            (15_000, 18),
+            (20_000, 24),
+            (25_000, 30),
+            (30_000, 30),
+            (35_000, 30),
+            (1_000_000, 30),
+        ] {
+            let kinds = progressive_schedule(step, &config, 36);
+            assert_eq!(kinds.len(), 36);
+            assert_eq!(count_linear(&kinds), want, "step {step}");
+            for group in kinds.chunks(6) {
+                assert_eq!(
+                    group[5],
+                    AttentionKind::Full,
+                    "step {step}: last of a group"
+                );
+                // First blocks first: the Linear ones are a prefix of the group.
+                let n = count_linear(group);
+                assert!(group[..n].iter().all(|&k| k == AttentionKind::Linear));
+            }
+        }
+    }
+
+    #[test]
+    fn no_progressive_schedule_switches_everything_at_once() {
+        let config = DistillConfig::new().with_start(0).with_interval(0);
+        let kinds = progressive_schedule(0, &config, 36);
+        assert_eq!(count_linear(&kinds), 30);
+    }
+
+    #[test]
+    fn a_short_last_group_keeps_its_last_block_full() {
+        // 8 blocks in groups of 3: [0 1 2] [3 4 5] [6 7].
+        let config = DistillConfig::new()
+            .with_group_size(3)
+            .with_start(0)
+            .with_interval(10);
+        let letters = |step| {
+            progressive_schedule(step, &config, 8)
+                .iter()
+                .map(|k| k.letter())
+                .collect::<String>()
+        };
+        assert_eq!(letters(0), "LFFLFFLF");
+        assert_eq!(letters(10), "LLFLLFLF");
+        assert_eq!(letters(1000), "LLFLLFLF");
+    }
+
+    #[test]
+    fn distill_layers_are_uniformly_spaced_or_listed() {
+        assert_eq!(
+            DistillLayers::Count(6).resolve(36).unwrap(),
+            vec![5, 11, 17, 23, 29, 35]
+        );
+        assert_eq!(DistillLayers::Count(2).resolve(6).unwrap(), vec![2, 5]);
+        assert_eq!(
+            DistillLayers::Count(4).resolve(12).unwrap(),
+            vec![2, 5, 8, 11]
+        );
+        assert_eq!(DistillLayers::Count(1).resolve(5).unwrap(), vec![4]);
+        assert_eq!(
+            DistillLayers::Count(5).resolve(5).unwrap(),
+            vec![0, 1, 2, 3, 4]
+        );
+        assert_eq!(
+            DistillLayers::List(vec![7, 1]).resolve(8).unwrap(),
+            vec![1, 7]
+        );
+        for bad in [
+            DistillLayers::Count(0),
+            DistillLayers::Count(9),
+            DistillLayers::List(vec![8]),
+            DistillLayers::List(vec![1, 1]),
+            DistillLayers::List(vec![]),
+        ] {
+            let err = bad.resolve(8).unwrap_err().to_string();
+            assert!(err.contains("distill.layers"), "{err}");
+        }
+    }
+}

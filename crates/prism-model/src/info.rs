@@ -42,8 +42,7 @@ impl ParameterCounts {
         let d = config.width;
         let p2 = config.patch_size * config.patch_size;
         let tokenizer = (SOURCE_CHANNELS + TARGET_CHANNELS) * p2 * d + d;
-        let per_block =
-            2 * d + 4 * d * d + 2 * config.head_dim() + 2 * config.mlp_ratio * d * d;
+        let per_block = 2 * d + 4 * d * d + 2 * config.head_dim() + 2 * config.mlp_ratio * d * d;
         let stage_one = config.stage_one_blocks * per_block;
         let stage_three = config.stage_three_blocks * per_block;
         let nvs_head = d + d * 3 * p2;
@@ -87,7 +86,10 @@ impl FlopCounts {
     pub fn of(config: &PrismConfig, kinds: &[AttentionKind], height: usize, width: usize) -> Self {
         let tokens = config.tokens_per_sequence(height, width);
         let per_image = (tokens / 2) as f64;
-        let (d, p2) = (config.width as f64, (config.patch_size * config.patch_size) as f64);
+        let (d, p2) = (
+            config.width as f64,
+            (config.patch_size * config.patch_size) as f64,
+        );
         let r = config.mlp_ratio as f64;
         let tokenizer = 2.0 * per_image * ((SOURCE_CHANNELS + TARGET_CHANNELS) as f64) * p2 * d;
         let projections =

@@ -91,12 +91,7 @@ pub struct StageThree {
 impl StageThree {
     /// `T_out` from `T'_mid` (`[B, T, d]`), recording the requested hidden states; `first` is
     /// the global index of this stage's first block (`M`).
-    pub fn forward(
-        &self,
-        t_mid: Tensor<3>,
-        first: usize,
-        hidden: &mut HiddenStates,
-    ) -> Tensor<3> {
+    pub fn forward(&self, t_mid: Tensor<3>, first: usize, hidden: &mut HiddenStates) -> Tensor<3> {
         run_blocks(&self.blocks, t_mid, first, hidden)
     }
 }

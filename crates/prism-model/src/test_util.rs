@@ -5,12 +5,17 @@ use burn::tensor::{Device, Tensor};
 
 /// The ndarray device (the backend every test must pass on).
 pub fn ndarray() -> Device {
-    prism_data::BackendKind::Ndarray.device().expect("ndarray is compiled in")
+    prism_data::BackendKind::Ndarray
+        .device()
+        .expect("ndarray is compiled in")
 }
 
 /// The values of a tensor.
 pub fn values<const D: usize>(t: &Tensor<D>) -> Vec<f32> {
-    t.to_data().convert::<f32>().try_to_vec::<f32>().expect("f32 data")
+    t.to_data()
+        .convert::<f32>()
+        .try_to_vec::<f32>()
+        .expect("f32 data")
 }
 
 /// The largest absolute difference between two equally long slices.
