@@ -14,11 +14,19 @@ struct Cli {
 
 /// The subcommands; each variant's arguments and `run` live in `commands/`.
 #[derive(Subcommand, Debug)]
-enum Command {}
+enum Command {
+    /// Size and cost of a model config: parameters, attention kinds, tokens, FLOPs.
+    Info(commands::info::InfoArgs),
+    /// Benchmarks (forward time of the model, ...).
+    Bench(commands::bench::BenchArgs),
+}
 
 fn main() {
     let cli = Cli::parse();
-    let result: anyhow::Result<()> = match cli.command {};
+    let result: anyhow::Result<()> = match cli.command {
+        Command::Info(args) => args.run(),
+        Command::Bench(args) => args.run(),
+    };
     if let Err(err) = result {
         eprintln!("error: {err:#}");
         std::process::exit(1);

@@ -272,9 +272,9 @@ pub fn parse_config(text: &str, origin: &Path) -> Result<ModelConfigFile, ModelE
 /// [`ModelError::Read`] when the file cannot be read, otherwise as [`parse_config`].
 pub fn load_config(path: impl AsRef<Path>) -> Result<ModelConfigFile, ModelError> {
     let path = path.as_ref();
-    let text = std::fs::read_to_string(path).map_err(|source| ModelError::Read {
+    let text = std::fs::read_to_string(path).map_err(|cause| ModelError::Read {
         path: path.to_path_buf(),
-        source,
+        cause,
     })?;
     parse_config(&text, path)
 }

@@ -151,11 +151,12 @@ impl DistillConfig {
     pub fn linear_per_group(&self, step: usize) -> usize {
         let most = self.group_size.saturating_sub(1);
         if step < self.start {
-            0
-        } else if self.interval == 0 {
-            most
-        } else {
-            (1 + (step - self.start) / self.interval).min(most)
+            return 0;
+        }
+        match (step - self.start).checked_div(self.interval) {
+            Some(switches) => (1 + switches).min(most),
+            // interval 0: everything switches at `start`.
+            None => most,
         }
     }
 }
