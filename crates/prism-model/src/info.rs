@@ -196,3 +196,63 @@ impl ModelInfo {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::load_config;
+    use std::path::Path;
+
+    fn config(name: &str) -> PrismConfig {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../../configs/{name}.toml"));
+        load_config(path).unwrap().model
+    }
+
+    #[test]
+    fn paper_scale_counts() {
+        let paper = config("paper");
+        let counts = ParameterCounts::of(&paper);
+        // Per block: 2 LayerNorm gains (2 x 768) + qkv (768 x 2304) + out (768 x 768)
+        // + QK-norm gains (2 x 64) + MLP (768 x 3072 + 3072 x 768).
+        assert_eq!(
+            counts.per_block,
+            1536 + 1_769_472 + 589_824 + 128 + 4_718_592
+        );
+        // Tokenizer: (9 + 6) x 64 x 768 + LayerNorm 768; head: 768 + 768 x 192.
+        assert_eq!(counts.tokenizer, 737_280 + 768);
+        assert_eq!(counts.nvs_head, 768 + 147_456);
+        assert_eq!(counts.total, 255_750_144);
+
+        let kinds = vec![AttentionKind::Full; 36];
+        let info = ModelInfo::new(&paper, &kinds, 512);
+        assert_eq!(info.tokens_per_sequence, 8192);
+        assert_eq!(info.blocks.len(), 36);
+        // Full attention per block: Q K^T and A V, 8192^2 x 768 multiply-adds each.
+        let t = 8192.0f64;
+        assert_eq!(info.blocks[0].attention_flops, 4.0 * t * t * 768.0);
+        let json = serde_json::to_value(&info).unwrap();
+        assert_eq!(json["parameters"], 255_750_144);
+        assert_eq!(json["blocks"].as_array().unwrap().len(), 36);
+        assert_eq!(json["blocks"][35]["attention"], "full");
+    }
+
+    #[test]
+    fn full_attention_grows_quadratically_and_linear_linearly() {
+        let tiny = config("tiny");
+        let full = |t| attention_flops(&tiny, AttentionKind::Full, t);
+        let linear = |t| attention_flops(&tiny, AttentionKind::Linear, t);
+        assert_eq!(full(512) / full(128), 16.0);
+        assert_eq!(linear(512) / linear(128), 4.0);
+        let kinds = vec![AttentionKind::Linear; 6];
+        let info = ModelInfo::new(&tiny, &kinds, 64);
+        assert_eq!(info.flops_per_frame.total, info.flops_per_frame_all_linear);
+        assert!(info.flops_per_frame_all_linear < info.flops_per_frame_all_full);
+        let f = info.flops_per_frame;
+        assert_eq!(
+            f.total,
+            f.tokenizer + f.projections + f.attention + f.nvs_head
+        );
+        // Projections and MLP: 24 T d^2 per block for an MLP ratio of 4.
+        assert_eq!(f.projections, 6.0 * 24.0 * 128.0 * 64.0 * 64.0);
+    }
+}
