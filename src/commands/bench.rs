@@ -77,14 +77,10 @@ impl ModelBenchArgs {
             warmup: self.warmup,
             iters: self.iters.max(1),
         };
-        let mut rows = Vec::new();
-        println!(
-            "{:<16} {:>6} {:>7} {:>10} {:>8} {:>12}",
-            "model", "res", "tokens", "ms/frame", "fps", "peak_mem"
-        );
+        // Load and check every config before timing anything.
+        let mut runs = Vec::new();
         for path in &self.config {
-            let file = load_config(path)?;
-            let config = file.model;
+            let config = load_config(path)?.model;
             let name = path
                 .file_stem()
                 .map(|s| s.to_string_lossy().into_owned())
@@ -104,6 +100,14 @@ impl ModelBenchArgs {
                     path.display()
                 );
             }
+            runs.push((name, config, resolutions));
+        }
+        println!(
+            "{:<16} {:>6} {:>7} {:>10} {:>8} {:>12}",
+            "model", "res", "tokens", "ms/frame", "fps", "peak_mem"
+        );
+        let mut rows = Vec::new();
+        for (name, config, resolutions) in runs {
             device.seed(0);
             let mut model = config.init(&device);
             for &kind in &self.attention {
@@ -135,6 +139,9 @@ impl ModelBenchArgs {
 /// Writes the rows as `{"rows": [...]}`, through a temporary file and a rename.
 fn write_json(path: &Path, rows: &[BenchRow]) -> anyhow::Result<()> {
     let text = serde_json::to_string_pretty(&serde_json::json!({ "rows": rows }))?;
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
     let tmp = path.with_extension("json.tmp");
     std::fs::write(&tmp, text + "\n").with_context(|| format!("cannot write {}", tmp.display()))?;
     std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))?;
