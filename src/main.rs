@@ -18,12 +18,18 @@ enum Command {
     /// Datasets: synthesise, render from scans, validate.
     #[command(subcommand)]
     Data(commands::data::DataCommand),
+    /// Size and cost of a model config: parameters, attention kinds, tokens, FLOPs.
+    Info(commands::info::InfoArgs),
+    /// Benchmarks (forward time of the model, ...).
+    Bench(commands::bench::BenchArgs),
 }
 
 fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Data(cmd) => cmd.run(),
+        Command::Info(args) => args.run(),
+        Command::Bench(args) => args.run(),
     };
     if let Err(err) = result {
         eprintln!("error: {err:#}");
