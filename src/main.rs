@@ -15,13 +15,23 @@ struct Cli {
 /// The subcommands; each variant's arguments and `run` live in `commands/`.
 #[derive(Subcommand, Debug)]
 enum Command {
+    /// Datasets: synthesise, render from scans, validate.
+    #[command(subcommand)]
+    Data(commands::data::DataCommand),
+    /// Size and cost of a model config: parameters, attention kinds, tokens, FLOPs.
+    Info(commands::info::InfoArgs),
+    /// Benchmarks (forward time of the model, ...).
+    Bench(commands::bench::BenchArgs),
     /// PSNR, SSIM and LPIPS of images (or folders of images) against ground truth.
     Metrics(commands::metrics::MetricsArgs),
 }
 
 fn main() {
     let cli = Cli::parse();
-    let result: anyhow::Result<()> = match cli.command {
+    let result = match cli.command {
+        Command::Data(cmd) => cmd.run(),
+        Command::Info(args) => args.run(),
+        Command::Bench(args) => args.run(),
         Command::Metrics(args) => args.run(),
     };
     if let Err(err) = result {

@@ -1,4 +1,7 @@
 //! One module per subcommand group: each holds its clap arguments and a `run` that calls the
 //! library.
 
+pub mod bench;
+pub mod data;
+pub mod info;
 pub mod metrics;

@@ -8,11 +8,18 @@
 
 pub mod backend;
 pub mod camera;
+pub mod dataset;
+pub mod material;
 pub mod mesh;
 pub mod protocol;
+pub mod raster;
 pub mod rays;
+pub mod scan;
 
 pub use backend::{BackendError, BackendKind};
 pub use camera::{Camera, Intrinsics};
-pub use mesh::Mesh;
+pub use material::{Material, Shading, Texture};
+pub use mesh::{Mesh, MeshError};
 pub use protocol::{Placement, ViewAngles, ViewingProtocol};
+pub use raster::{RenderError, RenderOptions, RenderOutput, render};
+pub use scan::{Facing, ScanError, ScanOptions, UpAxis, load_scan, normalise};
