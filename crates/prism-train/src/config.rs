@@ -255,7 +255,8 @@ fn describe_toml_error(text: &str, err: &toml::de::Error) -> String {
         .lines()
         .chain(text[start..].lines().take(1))
         .filter_map(|l| {
-            let l = l.trim();
+            // A header may carry a comment: `[train]  # ...`.
+            let l = l.split('#').next().unwrap_or("").trim();
             (l.starts_with('[') && l.ends_with(']')).then(|| l.to_string())
         })
         .last();

@@ -60,4 +60,51 @@ mod tests {
         assert!(group.matches(&id, Some("prism.nvs_head.linear.weight")));
         assert!(!group.matches(&id, Some("prism.stage_three.blocks.3.mlp.fc_in.weight")));
     }
+
+    /// The optimizer applies each group's rate: with a backbone rate of 0 only the heads move.
+    #[test]
+    fn the_optimizer_uses_the_heads_rate_for_head_parameters_only() {
+        use crate::clip::parameter_values;
+        use crate::step::Trainee;
+        use burn::module::{Module, ModuleVisitor, Param};
+        use burn::optim::{AdamWConfig, GradientsParams};
+        use burn::tensor::{Distribution, Tensor};
+
+        let path = crate::config::configs_dir().join("tiny.toml");
+        let config = prism_model::load_config(path).unwrap().model;
+        let device = prism_data::BackendKind::Ndarray.device().unwrap().autodiff();
+        let trainee = Trainee {
+            prism: config.init(&device),
+        };
+        let x = Tensor::<4>::random([1, 3, 16, 16], Distribution::Uniform(0.0, 1.0), &device);
+        let rays = Tensor::<4>::random([1, 6, 16, 16], Distribution::Normal(0.0, 1.0), &device);
+        let out = trainee.prism.forward(x, rays.clone(), rays, &[]);
+        let grads = GradientsParams::from_grads(out.image.mean().backward(), &trainee);
+        let mut scheduler = ModuleLrScheduler::new(0.0_f64).with_group(heads_group(), 1e-2);
+        let mut optim = AdamWConfig::new().init();
+        let before = parameter_values(&trainee);
+        let after = parameter_values(&optim.step(scheduler.step(), trainee.clone(), grads));
+
+        struct Paths(Vec<String>, Vec<String>);
+        impl ModuleVisitor for Paths {
+            fn enter_module(&mut self, name: &str, _: &str) {
+                self.1.push(name.into());
+            }
+            fn exit_module(&mut self, _: &str, _: &str) {
+                self.1.pop();
+            }
+            fn visit_float<const D: usize>(&mut self, _: &Param<Tensor<D>>) {
+                self.0.push(self.1.join("."));
+            }
+        }
+        let mut paths = Paths(Vec::new(), Vec::new());
+        trainee.visit(&mut paths);
+        let mut heads = 0;
+        for ((path, a), b) in paths.0.iter().zip(&before).zip(&after) {
+            let moved = a.iter().zip(b).any(|(x, y)| x != y);
+            assert_eq!(moved, is_head(path), "{path}");
+            heads += usize::from(is_head(path));
+        }
+        assert_eq!(heads, 2, "the NVS head's norm and linear layer");
+    }
 }
