@@ -7,12 +7,15 @@
 //! images as `[B, 3, H, W]` tensors in [0, 1].
 
 pub mod backend;
+pub mod body;
 pub mod camera;
 pub mod mesh;
+pub mod people;
 pub mod protocol;
 pub mod rays;
 
 pub use backend::{BackendError, BackendKind};
+pub use body::{BodyError, BodyLayer, BodyModel, BodyParams};
 pub use camera::{Camera, Intrinsics};
 pub use mesh::Mesh;
 pub use protocol::{Placement, ViewAngles, ViewingProtocol};

@@ -1,0 +1,1 @@
+//! A procedural humanoid in SMPL-X's layout (work in progress).

@@ -1,0 +1,1 @@
+//! Procedural people (work in progress).
