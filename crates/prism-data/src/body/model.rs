@@ -25,6 +25,7 @@ pub const NUM_SHAPE_COEFFS: usize = NUM_BETAS + NUM_EXPRESSION;
 /// - `kintree_table` `[2, 55]`: row 0 the parents (root -1).
 #[derive(Clone, Debug, PartialEq)]
 pub struct BodyModel {
+    pub(crate) name: String,
     pub(crate) v_template: Vec<Vec3>,
     pub(crate) faces: Vec<[u32; 3]>,
     pub(crate) shapedirs: Vec<f32>,
@@ -35,7 +36,7 @@ pub struct BodyModel {
 }
 
 /// The raw arrays of a body model before validation (see [`BodyModel::from_arrays`]).
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct BodyArrays {
     /// `[V, 3]` rest template.
     pub v_template: Vec<Vec3>,
@@ -61,6 +62,18 @@ impl BodyModel {
     /// [`BodyError::Shape`] or [`BodyError::Value`] naming the offending array.
     pub fn from_arrays(arrays: BodyArrays) -> Result<Self, BodyError> {
         Self::from_arrays_at(arrays, &memory_path())
+    }
+
+    /// The model's name, as `body.json` records it: `procedural:SEED`, the path it was loaded
+    /// from, or `custom` for models built from arrays.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// The same model under another name.
+    pub fn with_name(mut self, name: impl Into<String>) -> Self {
+        self.name = name.into();
+        self
     }
 
     pub(crate) fn from_arrays_at(arrays: BodyArrays, path: &Path) -> Result<Self, BodyError> {
@@ -154,6 +167,11 @@ impl BodyModel {
             ));
         }
         Ok(Self {
+            name: if path == memory_path() {
+                "custom".to_string()
+            } else {
+                path.display().to_string()
+            },
             v_template: arrays.v_template,
             faces: arrays.faces,
             shapedirs: arrays.shapedirs,

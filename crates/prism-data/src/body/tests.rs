@@ -93,8 +93,9 @@ fn npz_round_trip_is_exact() {
     let path = dir.join("model.npz");
     model.save_npz(&path).unwrap();
     let back = BodyModel::load_npz(&path).unwrap();
-    assert_eq!(back, model);
+    assert_eq!(back.name(), path.display().to_string());
     assert!(back.has_smplx_tree());
+    assert_eq!(back.into_arrays(), model.into_arrays());
     // No temporary file is left behind.
     assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
     std::fs::remove_dir_all(dir).unwrap();
@@ -218,7 +219,7 @@ fn smplx_v11_layout_with_float64_and_uint32_loads() {
     write_smplx_like(&model, &path);
     let back = BodyModel::load_npz(&path).unwrap();
     // float64 -> f32 conversion is exact for values that came from f32.
-    assert_eq!(back, model);
+    assert_eq!(back.into_arrays(), model.into_arrays());
     std::fs::remove_dir_all(dir).unwrap();
 }
 

@@ -77,7 +77,9 @@ impl BodyModel {
             weights,
             parents: smplx_parents(),
         };
-        BodyModel::from_arrays(arrays).expect("the procedural model is consistent")
+        BodyModel::from_arrays(arrays)
+            .expect("the procedural model is consistent")
+            .with_name(model_name(seed))
     }
 }
 

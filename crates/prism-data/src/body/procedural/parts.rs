@@ -34,8 +34,6 @@ pub(crate) struct PartVertex {
     pub part: Part,
     /// Unit direction from the part's axis (or centre) to the vertex.
     pub radial: Vec3,
-    /// Axial coordinate along the part (metres; see each part).
-    pub s: f32,
 }
 
 /// The assembled rest body.
@@ -102,7 +100,6 @@ impl Assembly {
                 weights: weights(v),
                 part,
                 radial: v.radial,
-                s: v.s,
             });
         }
         self.faces.extend(tris.iter().map(|t| t.map(|i| i + base)));
@@ -122,7 +119,6 @@ impl Assembly {
                 weights: weights(p),
                 part,
                 radial: (p - centre).normalize_or(Vec3::Y),
-                s: p.y,
             });
         }
         self.faces.extend(tris.iter().map(|t| t.map(|i| i + base)));

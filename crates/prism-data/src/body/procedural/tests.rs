@@ -58,12 +58,12 @@ fn rest_pose_stands_on_the_floor_facing_z_in_a_t_pose() {
     // Left on +X, arms horizontal, the face (nose) in front of the eyes.
     assert!(j[joint::LEFT_WRIST].x > 0.6 && j[joint::RIGHT_WRIST].x < -0.6);
     assert!((j[joint::LEFT_WRIST].y - j[joint::LEFT_SHOULDER].y).abs() < 1e-3);
-    let nose = t
-        .iter()
-        .filter(|p| p.y > j[joint::HEAD].y)
-        .fold(Vec3::splat(f32::NEG_INFINITY), |a, p| {
-            if p.z > a.z { *p } else { a }
-        });
+    let nose =
+        t.iter()
+            .filter(|p| p.y > j[joint::HEAD].y)
+            .fold(Vec3::splat(f32::NEG_INFINITY), |a, p| {
+                if p.z > a.z { *p } else { a }
+            });
     assert!(nose.z > j[joint::LEFT_EYE].z + 0.02 && nose.x.abs() < 0.01);
 }
 

@@ -18,11 +18,6 @@ pub(crate) struct Section {
 }
 
 impl Section {
-    /// A round section of radius `r`.
-    pub fn round(s: f32, r: f32) -> Self {
-        Self::ellipse(s, r, r)
-    }
-
     /// An elliptic section with half-axes `r1` (along `e1`) and `r2` (along `e2`).
     pub fn ellipse(s: f32, r1: f32, r2: f32) -> Self {
         Self {
@@ -87,8 +82,6 @@ pub(crate) struct TubeVertex {
     pub position: Vec3,
     /// Axial coordinate (may lie outside the sections' range on the caps).
     pub s: f32,
-    /// The closest point on the axis.
-    pub axis_point: Vec3,
     /// Unit direction from the axis point (the cap poles point along the axis).
     pub radial: Vec3,
 }
@@ -188,7 +181,6 @@ impl Tube {
                 verts.push(TubeVertex {
                     position,
                     s: *s,
-                    axis_point: c,
                     radial,
                 });
             }
@@ -210,7 +202,6 @@ impl Tube {
         verts.push(TubeVertex {
             position: centre(start_s, &first),
             s: start_s,
-            axis_point: centre(start_s, &first),
             radial: -axis,
         });
         for j in 0..n {
@@ -221,7 +212,6 @@ impl Tube {
         verts.push(TubeVertex {
             position: centre(end_s, &last),
             s: end_s,
-            axis_point: centre(end_s, &last),
             radial: axis,
         });
         let base = (rings.len() - 1) * n;
@@ -242,7 +232,10 @@ mod tests {
             origin: Vec3::ZERO,
             axis: Vec3::X,
             e1: Vec3::Y,
-            sections: vec![Section::round(0.0, 1.0), Section::round(2.0, 1.0)],
+            sections: vec![
+                Section::ellipse(0.0, 1.0, 1.0),
+                Section::ellipse(2.0, 1.0, 1.0),
+            ],
             rings: 5,
             segments: 24,
             start_cap: 1.0,
