@@ -7,16 +7,19 @@
 //! images as `[B, 3, H, W]` tensors in [0, 1].
 
 pub mod backend;
+pub mod body;
 pub mod camera;
 pub mod dataset;
 pub mod material;
 pub mod mesh;
+pub mod people;
 pub mod protocol;
 pub mod raster;
 pub mod rays;
 pub mod scan;
 
 pub use backend::{BackendError, BackendKind};
+pub use body::{BodyError, BodyLayer, BodyModel, BodyParams};
 pub use camera::{Camera, Intrinsics};
 pub use material::{Material, Shading, Texture};
 pub use mesh::{Mesh, MeshError};
