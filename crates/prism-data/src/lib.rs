@@ -17,6 +17,7 @@ pub mod protocol;
 pub mod raster;
 pub mod rays;
 pub mod scan;
+pub mod synth;
 
 pub use backend::{BackendError, BackendKind};
 pub use body::{BodyError, BodyLayer, BodyModel, BodyParams};
