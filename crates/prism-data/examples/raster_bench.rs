@@ -1,7 +1,7 @@
 //! Times the CPU rasterizer on a 50k-triangle, person-sized mesh at 512 px with 3x3
 //! supersampling, with vertex colours and with a 4096 x 4096 texture.
 //!
-//! `cargo run --release -p prism-data --example raster_bench [-- RES SUPERSAMPLE RUNS]`
+//! `cargo run --release -p prism-data --example raster_bench [-- RES SUPERSAMPLE RUNS TRIANGLES]`
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -54,12 +54,18 @@ fn body(rings: usize, segments: usize) -> Mesh {
 fn main() {
     let args: Vec<usize> = std::env::args()
         .skip(1)
-        .map(|a| a.parse().expect("arguments: RES SUPERSAMPLE RUNS"))
+        .map(|a| {
+            a.parse()
+                .expect("arguments: RES SUPERSAMPLE RUNS TRIANGLES")
+        })
         .collect();
     let res = args.first().copied().unwrap_or(512) as u32;
     let supersample = args.get(1).copied().unwrap_or(3) as u32;
     let runs = args.get(2).copied().unwrap_or(10);
-    let mut mesh = body(125, 200);
+    // 2 * rings * segments triangles with segments = 1.6 rings (50k: 125 x 200).
+    let triangles = args.get(3).copied().unwrap_or(50_000) as f64;
+    let rings = (triangles / 3.2).sqrt().round() as usize;
+    let mut mesh = body(rings, (rings as f64 * 1.6).round() as usize);
     let protocol = ViewingProtocol::default();
     let views = protocol.views(0);
     let k = Intrinsics::protocol_default(res, res);

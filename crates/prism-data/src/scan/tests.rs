@@ -628,3 +628,52 @@ fn gltf_vertex_colours_are_converted_to_display_values() {
     assert!((c[0] - 0.7354).abs() < 1e-3 && c[1] == 0.0 && (c[2] - 1.0).abs() < 1e-6);
     assert_eq!(mesh.materials[0].shading, Shading::VertexColors);
 }
+
+#[test]
+fn damaged_files_are_errors_or_meshes_never_panics() {
+    use rand::{Rng, SeedableRng};
+    let dir = TempDir::new("damaged");
+    atlas().save(dir.0.join("atlas.png")).unwrap();
+    let obj = std::fs::read(textured_cube(&dir, "atlas.png")).unwrap();
+    let png = png_bytes(&atlas());
+    let (bin, views) = gltf_cube_buffer(&png);
+    std::fs::write(dir.0.join("cube.bin"), &bin).unwrap();
+    let buffer = format!(r#"{{"uri": "cube.bin", "byteLength": {}}}"#, bin.len());
+    let gltf = gltf_cube_json(&buffer, &views, r#"{"uri": "atlas.png"}"#).into_bytes();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    for (name, original) in [("d.obj", &obj), ("d.gltf", &gltf)] {
+        for _ in 0..150 {
+            let mut bytes = original.clone();
+            match rng.random_range(0..3) {
+                0 => bytes.truncate(rng.random_range(0..bytes.len())),
+                1 => {
+                    for _ in 0..rng.random_range(1..4) {
+                        let i = rng.random_range(0..bytes.len());
+                        bytes[i] = rng.random();
+                    }
+                }
+                _ => {
+                    let i = rng.random_range(0..bytes.len());
+                    let digit = b"0123456789-%/."[rng.random_range(0..14)];
+                    bytes.insert(i, digit);
+                }
+            }
+            let path = dir.0.join(name);
+            std::fs::write(&path, &bytes).unwrap();
+            match load_scan(&path) {
+                Ok((mesh, _)) => {
+                    assert_eq!(mesh.validate(), Ok(()));
+                    let cam = Camera::orbit(
+                        0.0,
+                        0.0,
+                        3.0,
+                        Vec3::ZERO,
+                        Intrinsics::protocol_default(8, 8),
+                    );
+                    render(&mesh, &cam, &RenderOptions::default()).unwrap();
+                }
+                Err(e) => assert!(e.to_string().contains(name), "{e}"),
+            }
+        }
+    }
+}
