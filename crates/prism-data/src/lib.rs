@@ -1,5 +1,6 @@
 //! Data for prism: cameras and Plücker rays, the paper's viewing protocol, the SMPL-X body
-//! model, procedural humans, the dataset format and training batches.
+//! model, procedural humans, textured scans (OBJ / glTF) and the CPU rasterizer that renders
+//! both, the dataset format and training batches.
 //!
 //! Conventions (shared by every crate of the workspace): metres, world Y-up, subjects stand on
 //! `y = 0` facing +Z; OpenCV cameras (x right, y down, looking along +z) given by pixel
