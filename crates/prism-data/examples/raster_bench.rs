@@ -1,65 +1,34 @@
 //! Times the CPU rasterizer on a 50k-triangle, person-sized mesh at 512 px with 3x3
 //! supersampling, with vertex colours and with a 4096 x 4096 texture.
 //!
-//! `cargo run --release -p prism-data --example raster_bench [-- RES SUPERSAMPLE RUNS]`
+//! `cargo run --release -p prism-data --example raster_bench [-- RES SUPERSAMPLE RUNS TRIANGLES]`
 
 use std::sync::Arc;
 use std::time::Instant;
 
-use glam::{Vec2, Vec3};
 use prism_data::{
     Intrinsics, Material, Mesh, RenderOptions, Shading, Texture, ViewingProtocol, render,
 };
 
-/// A closed ellipsoid about the size of a standing person (1.8 m tall) with `2 * rings *
-/// segments` triangles, vertex colours and per-corner UVs.
-fn body(rings: usize, segments: usize) -> Mesh {
-    let mut positions = Vec::new();
-    let mut colors = Vec::new();
-    let mut uvs = Vec::new();
-    for r in 0..=rings {
-        let theta = std::f32::consts::PI * r as f32 / rings as f32;
-        for s in 0..=segments {
-            let phi = std::f32::consts::TAU * s as f32 / segments as f32;
-            let p = Vec3::new(
-                0.25 * theta.sin() * phi.cos(),
-                0.9 + 0.9 * theta.cos(),
-                0.15 * theta.sin() * phi.sin(),
-            );
-            positions.push(p);
-            colors.push([0.5 + 0.5 * phi.cos(), r as f32 / rings as f32, 0.4]);
-            uvs.push(Vec2::new(
-                s as f32 / segments as f32,
-                1.0 - r as f32 / rings as f32,
-            ));
-        }
-    }
-    let mut triangles = Vec::new();
-    let mut corner_uvs = Vec::new();
-    let at = |r: usize, s: usize| (r * (segments + 1) + s) as u32;
-    for r in 0..rings {
-        for s in 0..segments {
-            let q = [at(r, s), at(r + 1, s), at(r + 1, s + 1), at(r, s + 1)];
-            for t in [[q[0], q[1], q[2]], [q[0], q[2], q[3]]] {
-                triangles.push(t);
-                corner_uvs.push(t.map(|i| uvs[i as usize]));
-            }
-        }
-    }
-    let mut mesh = Mesh::with_vertex_colors(positions, triangles, colors);
-    mesh.corner_uvs = corner_uvs;
-    mesh
-}
+#[path = "common/body.rs"]
+mod common;
+use common::body;
 
 fn main() {
     let args: Vec<usize> = std::env::args()
         .skip(1)
-        .map(|a| a.parse().expect("arguments: RES SUPERSAMPLE RUNS"))
+        .map(|a| {
+            a.parse()
+                .expect("arguments: RES SUPERSAMPLE RUNS TRIANGLES")
+        })
         .collect();
     let res = args.first().copied().unwrap_or(512) as u32;
     let supersample = args.get(1).copied().unwrap_or(3) as u32;
     let runs = args.get(2).copied().unwrap_or(10);
-    let mut mesh = body(125, 200);
+    // 2 * rings * segments triangles with segments = 1.6 rings (50k: 125 x 200).
+    let triangles = args.get(3).copied().unwrap_or(50_000) as f64;
+    let rings = (triangles / 3.2).sqrt().round() as usize;
+    let mut mesh = body(rings, (rings as f64 * 1.6).round() as usize);
     let protocol = ViewingProtocol::default();
     let views = protocol.views(0);
     let k = Intrinsics::protocol_default(res, res);

@@ -1,5 +1,6 @@
 //! Data for prism: cameras and Plücker rays, the paper's viewing protocol, the SMPL-X body
-//! model, procedural humans, the dataset format and training batches.
+//! model, procedural humans, textured scans (OBJ / glTF) and the CPU rasterizer that renders
+//! both, the dataset format and training batches.
 //!
 //! Conventions (shared by every crate of the workspace): metres, world Y-up, subjects stand on
 //! `y = 0` facing +Z; OpenCV cameras (x right, y down, looking along +z) given by pixel
@@ -7,16 +8,20 @@
 //! images as `[B, 3, H, W]` tensors in [0, 1].
 
 pub mod backend;
+pub mod body;
 pub mod camera;
 pub mod dataset;
 pub mod material;
 pub mod mesh;
+pub mod people;
 pub mod protocol;
 pub mod raster;
 pub mod rays;
 pub mod scan;
+pub mod synth;
 
 pub use backend::{BackendError, BackendKind};
+pub use body::{BodyError, BodyLayer, BodyModel, BodyParams};
 pub use camera::{Camera, Intrinsics};
 pub use material::{Material, Shading, Texture};
 pub use mesh::{Mesh, MeshError};

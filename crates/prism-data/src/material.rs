@@ -85,13 +85,24 @@ impl MipLevel {
         }
     }
 
-    /// Bilinear sample at continuous texel coordinates (texel centres at `+0.5`), wrapping
-    /// around the edges (the OBJ default, `-clamp off`).
+    /// Bilinear sample at continuous texel coordinates in `[0, width] x [0, height]`
+    /// (texel centres at `+0.5`), wrapping around the edges (the OBJ default,
+    /// `-clamp off`).
     fn bilinear(&self, x: f32, y: f32) -> [f32; 3] {
         let (fx, fy) = (x - 0.5, y - 0.5);
         let (x0, y0) = (fx.floor(), fy.floor());
         let (tx, ty) = (fx - x0, fy - y0);
-        let wrap = |i: f32, n: usize| (i as i64).rem_euclid(n as i64) as usize;
+        // The two texels around a coordinate in [-1, n]: wrap by one period at most.
+        let wrap = |i: f32, n: usize| {
+            let i = i as i64;
+            if i < 0 {
+                n - 1
+            } else if i as usize >= n {
+                (i as usize) % n
+            } else {
+                i as usize
+            }
+        };
         let (xa, xb) = (wrap(x0, self.width), wrap(x0 + 1.0, self.width));
         let (ya, yb) = (wrap(y0, self.height), wrap(y0 + 1.0, self.height));
         let at = |x: usize, y: usize| self.texels[y * self.width + x];

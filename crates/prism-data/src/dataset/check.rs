@@ -122,10 +122,10 @@ fn check_subject(reader: &DatasetReader, name: &str) -> Vec<Problem> {
         problems.push(e.into());
     }
     let body = reader.body_path(name);
-    if body.exists() {
-        if let Err(e) = super::io::read_json::<serde_json::Value>(&body) {
-            problems.push(e.into());
-        }
+    if body.exists()
+        && let Err(e) = super::io::read_json::<crate::body::BodyParams>(&body)
+    {
+        problems.push(e.into());
     }
     let mut source_mask = None;
     for index in 0..reader.meta().views {

@@ -6,6 +6,7 @@ pub mod check;
 pub mod error;
 pub mod io;
 pub mod reader;
+pub mod render_subject;
 pub mod samples;
 pub mod schema;
 pub mod writer;

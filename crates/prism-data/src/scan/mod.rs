@@ -1,5 +1,5 @@
 //! Textured human scans (THuman, 2K2K, own captures) as renderable meshes: loading
-//! (Wavefront OBJ with MTL materials and PNG / JPEG textures) and normalisation to the
+//! (Wavefront OBJ with MTL materials and PNG / JPEG textures, glTF 2.0) and normalisation to the
 //! viewing protocol.
 //!
 //! ```text
@@ -13,6 +13,7 @@
 //! naming the file (and line).
 
 mod error;
+mod gltf_file;
 mod mtl;
 mod normalise;
 mod obj;
@@ -36,7 +37,7 @@ pub const GREY: [f32; 3] = [0.5, 0.5, 0.5];
 /// Loads a scan mesh in its file's coordinates, with warnings about what could not be used
 /// (missing textures, material libraries or materials, skipped statements).
 ///
-/// The format follows the extension: `.obj`.
+/// The format follows the extension: `.obj`, `.gltf` or `.glb`.
 pub fn load_scan(path: &Path) -> Result<(Mesh, Vec<String>), ScanError> {
     let extension = path
         .extension()
@@ -44,6 +45,7 @@ pub fn load_scan(path: &Path) -> Result<(Mesh, Vec<String>), ScanError> {
         .map(str::to_ascii_lowercase);
     match extension.as_deref() {
         Some("obj") => obj::load_obj(path),
+        Some("gltf") | Some("glb") => gltf_file::load_gltf(path),
         _ => Err(ScanError::Unsupported {
             path: path.to_path_buf(),
         }),

@@ -8,6 +8,7 @@ use image::{Rgb, RgbImage};
 use super::*;
 use crate::camera::{Camera, Intrinsics};
 use crate::material::Shading;
+use crate::mesh::Mesh;
 use crate::protocol::{Placement, ViewingProtocol};
 use crate::raster::{RenderOptions, render};
 
@@ -51,14 +52,68 @@ fn atlas() -> RgbImage {
     })
 }
 
-/// The UV rectangle (inset by a quarter block) of atlas block `b`, as `vt` lines in the
-/// order bottom-left, bottom-right, top-right, top-left.
+/// The `vt` lines of atlas block `b`.
 fn block_uvs(b: usize) -> String {
+    block_uv_corners(b)
+        .iter()
+        .map(|uv| format!("vt {} {}\n", uv.x, uv.y))
+        .collect()
+}
+
+/// Corners of each face of the unit cube, counter-clockwise seen from outside, in the order
+/// +X, -X, +Y, -Y, +Z, -Z.
+const CUBE_FACES: [[[f32; 3]; 4]; 6] = [
+    [
+        [0.5, -0.5, 0.5],
+        [0.5, -0.5, -0.5],
+        [0.5, 0.5, -0.5],
+        [0.5, 0.5, 0.5],
+    ],
+    [
+        [-0.5, -0.5, -0.5],
+        [-0.5, -0.5, 0.5],
+        [-0.5, 0.5, 0.5],
+        [-0.5, 0.5, -0.5],
+    ],
+    [
+        [-0.5, 0.5, 0.5],
+        [0.5, 0.5, 0.5],
+        [0.5, 0.5, -0.5],
+        [-0.5, 0.5, -0.5],
+    ],
+    [
+        [-0.5, -0.5, -0.5],
+        [0.5, -0.5, -0.5],
+        [0.5, -0.5, 0.5],
+        [-0.5, -0.5, 0.5],
+    ],
+    [
+        [-0.5, -0.5, 0.5],
+        [0.5, -0.5, 0.5],
+        [0.5, 0.5, 0.5],
+        [-0.5, 0.5, 0.5],
+    ],
+    [
+        [0.5, -0.5, -0.5],
+        [-0.5, -0.5, -0.5],
+        [-0.5, 0.5, -0.5],
+        [0.5, 0.5, -0.5],
+    ],
+];
+
+/// The inset UV rectangle of atlas block `b` (OBJ convention, v up): bottom-left,
+/// bottom-right, top-right, top-left.
+fn block_uv_corners(b: usize) -> [Vec2; 4] {
     let (col, row) = ((b % 3) as f32, (b / 3) as f32);
     let (u0, u1) = ((col + 0.25) / 3.0, (col + 0.75) / 3.0);
     // Image row 0 is the top: v = 1 - y / height.
     let (v1, v0) = (1.0 - (row + 0.25) / 2.0, 1.0 - (row + 0.75) / 2.0);
-    format!("vt {u0} {v0}\nvt {u1} {v0}\nvt {u1} {v1}\nvt {u0} {v1}\n")
+    [
+        Vec2::new(u0, v0),
+        Vec2::new(u1, v0),
+        Vec2::new(u1, v1),
+        Vec2::new(u0, v1),
+    ]
 }
 
 /// A unit cube centred at the origin, one quad per face, face `i` textured with atlas
@@ -68,47 +123,8 @@ fn textured_cube(dir: &TempDir, texture: &str) -> PathBuf {
         "cube.mtl",
         &format!("newmtl skin\nKd 1 1 1\nmap_Kd {texture}\n"),
     );
-    // Corners of each face, counter-clockwise seen from outside.
-    let faces: [[[f32; 3]; 4]; 6] = [
-        [
-            [0.5, -0.5, 0.5],
-            [0.5, -0.5, -0.5],
-            [0.5, 0.5, -0.5],
-            [0.5, 0.5, 0.5],
-        ],
-        [
-            [-0.5, -0.5, -0.5],
-            [-0.5, -0.5, 0.5],
-            [-0.5, 0.5, 0.5],
-            [-0.5, 0.5, -0.5],
-        ],
-        [
-            [-0.5, 0.5, 0.5],
-            [0.5, 0.5, 0.5],
-            [0.5, 0.5, -0.5],
-            [-0.5, 0.5, -0.5],
-        ],
-        [
-            [-0.5, -0.5, -0.5],
-            [0.5, -0.5, -0.5],
-            [0.5, -0.5, 0.5],
-            [-0.5, -0.5, 0.5],
-        ],
-        [
-            [-0.5, -0.5, 0.5],
-            [0.5, -0.5, 0.5],
-            [0.5, 0.5, 0.5],
-            [-0.5, 0.5, 0.5],
-        ],
-        [
-            [0.5, -0.5, -0.5],
-            [-0.5, -0.5, -0.5],
-            [-0.5, 0.5, -0.5],
-            [0.5, 0.5, -0.5],
-        ],
-    ];
     let mut obj = String::from("# a textured cube\nmtllib cube.mtl\nusemtl skin\n");
-    for (i, face) in faces.iter().enumerate() {
+    for (i, face) in CUBE_FACES.iter().enumerate() {
         for p in face {
             obj += &format!("v {} {} {}\n", p[0], p[1], p[2]);
         }
@@ -298,22 +314,28 @@ fn textured_cube_shows_the_expected_texels() {
     let path = textured_cube(&dir, "atlas.png");
     let (mesh, warnings) = load_scan(&path).unwrap();
     assert!(warnings.is_empty(), "{warnings:?}");
+    check_cube_render(&mesh, Vec3::ZERO, 1.0);
+}
+
+/// Renders a cube of the atlas's face colours (centre `centre`, edge `size`) frontally and
+/// from above-right, and checks the texels at the centres of the visible faces.
+fn check_cube_render(mesh: &Mesh, centre: Vec3, size: f32) {
     let k = Intrinsics::protocol_default(64, 64);
     // Frontal: the +Z face (block 4) fills the centre.
-    let cam = Camera::orbit(0.0, 0.0, 3.0, Vec3::ZERO, k);
-    let out = render(&mesh, &cam, &RenderOptions::default()).unwrap();
-    let centre = out.rgb[out.index(32, 32)];
-    assert!(close(centre, rgb(FACE_COLORS[4])), "{centre:?}");
+    let cam = Camera::orbit(0.0, 0.0, 3.0 * size, centre, k);
+    let out = render(mesh, &cam, &RenderOptions::default()).unwrap();
+    let got = out.rgb[out.index(32, 32)];
+    assert!(close(got, rgb(FACE_COLORS[4])), "{got:?}");
     // From above-right: the +X, +Y and +Z faces show their blocks at their centres' pixels.
-    let cam = Camera::orbit(30.0, 20.0, 3.0, Vec3::ZERO, k);
-    let out = render(&mesh, &cam, &RenderOptions::default()).unwrap();
-    for (centre, block) in [(Vec3::X, 0), (Vec3::Y, 2), (Vec3::Z, 4)] {
-        let (u, v, _) = cam.project(centre * 0.5);
+    let cam = Camera::orbit(30.0, 20.0, 3.0 * size, centre, k);
+    let out = render(mesh, &cam, &RenderOptions::default()).unwrap();
+    for (normal, block) in [(Vec3::X, 0), (Vec3::Y, 2), (Vec3::Z, 4)] {
+        let (u, v, _) = cam.project(centre + normal * 0.5 * size);
         let (x, y) = (u as usize, v as usize);
         let got = out.rgb[out.index(x, y)];
         assert!(
             close(got, rgb(FACE_COLORS[block])),
-            "face {centre} at ({x}, {y}): {got:?}"
+            "face {normal} at ({x}, {y}): {got:?}"
         );
         assert_eq!(out.alpha[out.index(x, y)], 1.0);
     }
@@ -428,4 +450,230 @@ fn normalised_scan_has_the_drawn_height_on_the_floor_facing_plus_z() {
         translation: [0.0; 3],
     };
     assert!(normalise(&mesh, &ScanOptions::default(), &placement).is_err());
+}
+
+/// The binary buffer of a glTF cube: positions (scaled by `size`), UVs (glTF's v down) and
+/// u16 indices, then `extra` bytes (an embedded image); returns the buffer and the JSON
+/// fragments `bufferViews` and `accessors`.
+fn gltf_cube_buffer(extra: &[u8]) -> (Vec<u8>, String) {
+    let mut bin = Vec::new();
+    for face in &CUBE_FACES {
+        for p in face {
+            for c in p {
+                bin.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+    }
+    for b in 0..6 {
+        for uv in block_uv_corners(b) {
+            bin.extend_from_slice(&uv.x.to_le_bytes());
+            bin.extend_from_slice(&(1.0 - uv.y).to_le_bytes());
+        }
+    }
+    for f in 0..6u16 {
+        for i in [0, 1, 2, 0, 2, 3] {
+            bin.extend_from_slice(&(4 * f + i).to_le_bytes());
+        }
+    }
+    assert_eq!(bin.len(), 552);
+    bin.extend_from_slice(extra);
+    while !bin.len().is_multiple_of(4) {
+        bin.push(0);
+    }
+    let views = format!(
+        r#""bufferViews": [
+            {{"buffer": 0, "byteOffset": 0, "byteLength": 288}},
+            {{"buffer": 0, "byteOffset": 288, "byteLength": 192}},
+            {{"buffer": 0, "byteOffset": 480, "byteLength": 72}},
+            {{"buffer": 0, "byteOffset": 552, "byteLength": {}}}
+        ],
+        "accessors": [
+            {{"bufferView": 0, "componentType": 5126, "count": 24, "type": "VEC3",
+              "min": [-0.5, -0.5, -0.5], "max": [0.5, 0.5, 0.5]}},
+            {{"bufferView": 1, "componentType": 5126, "count": 24, "type": "VEC2"}},
+            {{"bufferView": 2, "componentType": 5123, "count": 36, "type": "SCALAR"}}
+        ]"#,
+        extra.len().max(1)
+    );
+    (bin, views)
+}
+
+/// The JSON of a glTF cube under a node scaled by 2 and lifted by 1 m, with a base-colour
+/// texture from `image` (a JSON image object).
+fn gltf_cube_json(buffer: &str, views: &str, image: &str) -> String {
+    format!(
+        r#"{{
+        "asset": {{"version": "2.0"}},
+        "scene": 0,
+        "scenes": [{{"nodes": [0]}}],
+        "nodes": [{{"mesh": 0, "scale": [2, 2, 2], "translation": [0, 1, 0]}}],
+        "meshes": [{{"primitives": [{{"attributes": {{"POSITION": 0, "TEXCOORD_0": 1}},
+                                      "indices": 2, "material": 0}}]}}],
+        "materials": [{{"name": "skin", "pbrMetallicRoughness": {{
+            "baseColorTexture": {{"index": 0}}}}}}],
+        "textures": [{{"source": 0}}],
+        "images": [{image}],
+        "buffers": [{buffer}],
+        {views}
+    }}"#
+    )
+}
+
+fn png_bytes(image: &RgbImage) -> Vec<u8> {
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    image.write_to(&mut bytes, image::ImageFormat::Png).unwrap();
+    bytes.into_inner()
+}
+
+#[test]
+fn gltf_cube_with_external_buffer_and_texture_renders_its_texels() {
+    let dir = TempDir::new("gltf");
+    atlas().save(dir.0.join("atlas.png")).unwrap();
+    let (bin, views) = gltf_cube_buffer(&[]);
+    std::fs::write(dir.0.join("cube.bin"), &bin).unwrap();
+    let buffer = format!(r#"{{"uri": "cube.bin", "byteLength": {}}}"#, bin.len());
+    let path = dir.write(
+        "cube.gltf",
+        &gltf_cube_json(&buffer, &views, r#"{"uri": "atlas.png"}"#),
+    );
+    let (mesh, warnings) = load_scan(&path).unwrap();
+    assert!(warnings.is_empty(), "{warnings:?}");
+    assert_eq!(mesh.triangles.len(), 12);
+    // The node's transform is applied: edge 2 m, centred 1 m up.
+    let (lo, hi) = mesh.bounds().unwrap();
+    assert!((lo - Vec3::new(-1.0, 0.0, -1.0)).length() < 1e-6);
+    assert!((hi - Vec3::new(1.0, 2.0, 1.0)).length() < 1e-6);
+    check_cube_render(&mesh, Vec3::Y, 2.0);
+    // A missing image renders grey with a warning.
+    let path = dir.write(
+        "lost.gltf",
+        &gltf_cube_json(&buffer, &views, r#"{"uri": "lost.png"}"#),
+    );
+    let (mesh, warnings) = load_scan(&path).unwrap();
+    assert_eq!(warnings.len(), 1, "{warnings:?}");
+    assert!(warnings[0].contains("lost.png") || warnings[0].contains("image 0"));
+    assert_eq!(mesh.materials[0].shading, Shading::Flat(GREY));
+    // A missing buffer is an error naming the file.
+    std::fs::remove_file(dir.0.join("cube.bin")).unwrap();
+    let e = load_scan(&path).unwrap_err().to_string();
+    assert!(e.contains("lost.gltf"), "{e}");
+}
+
+#[test]
+fn glb_cube_with_embedded_texture_renders_its_texels() {
+    let dir = TempDir::new("glb");
+    let png = png_bytes(&atlas());
+    let (bin, views) = gltf_cube_buffer(&png);
+    let buffer = format!(r#"{{"byteLength": {}}}"#, bin.len());
+    let image = r#"{"bufferView": 3, "mimeType": "image/png"}"#;
+    let mut json = gltf_cube_json(&buffer, &views, image).into_bytes();
+    while !json.len().is_multiple_of(4) {
+        json.push(b' ');
+    }
+    let mut glb = Vec::new();
+    glb.extend_from_slice(b"glTF");
+    glb.extend_from_slice(&2u32.to_le_bytes());
+    glb.extend_from_slice(&((12 + 8 + json.len() + 8 + bin.len()) as u32).to_le_bytes());
+    glb.extend_from_slice(&(json.len() as u32).to_le_bytes());
+    glb.extend_from_slice(b"JSON");
+    glb.extend_from_slice(&json);
+    glb.extend_from_slice(&(bin.len() as u32).to_le_bytes());
+    glb.extend_from_slice(b"BIN\0");
+    glb.extend_from_slice(&bin);
+    let path = dir.0.join("cube.glb");
+    std::fs::write(&path, &glb).unwrap();
+    let (mesh, warnings) = load_scan(&path).unwrap();
+    assert!(warnings.is_empty(), "{warnings:?}");
+    check_cube_render(&mesh, Vec3::Y, 2.0);
+    // A truncated file is an error naming it.
+    std::fs::write(&path, &glb[..glb.len() / 2]).unwrap();
+    let e = load_scan(&path).unwrap_err().to_string();
+    assert!(e.contains("cube.glb"), "{e}");
+}
+
+#[test]
+fn gltf_vertex_colours_are_converted_to_display_values() {
+    let dir = TempDir::new("gltf-colours");
+    let mut bin = Vec::new();
+    for p in [[0.0f32, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]] {
+        for c in p {
+            bin.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    for c in [[0.5f32, 0.0, 1.0], [0.5, 0.0, 1.0], [0.5, 0.0, 1.0]] {
+        for x in c {
+            bin.extend_from_slice(&x.to_le_bytes());
+        }
+    }
+    std::fs::write(dir.0.join("t.bin"), &bin).unwrap();
+    let json = r#"{
+        "asset": {"version": "2.0"},
+        "nodes": [{"mesh": 0}],
+        "scenes": [{"nodes": [0]}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "COLOR_0": 1}}]}],
+        "buffers": [{"uri": "t.bin", "byteLength": 72}],
+        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 36},
+                        {"buffer": 0, "byteOffset": 36, "byteLength": 36}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+             "min": [0, 0, 0], "max": [1, 1, 0]},
+            {"bufferView": 1, "componentType": 5126, "count": 3, "type": "VEC3"}]
+    }"#;
+    let path = dir.write("t.gltf", json);
+    let (mesh, warnings) = load_scan(&path).unwrap();
+    assert!(warnings.is_empty(), "{warnings:?}");
+    assert_eq!(mesh.triangles, vec![[0, 1, 2]]);
+    // Linear 0.5 is sRGB 0.7354.
+    let c = mesh.colors[0];
+    assert!((c[0] - 0.7354).abs() < 1e-3 && c[1] == 0.0 && (c[2] - 1.0).abs() < 1e-6);
+    assert_eq!(mesh.materials[0].shading, Shading::VertexColors);
+}
+
+#[test]
+fn damaged_files_are_errors_or_meshes_never_panics() {
+    use rand::{Rng, SeedableRng};
+    let dir = TempDir::new("damaged");
+    atlas().save(dir.0.join("atlas.png")).unwrap();
+    let obj = std::fs::read(textured_cube(&dir, "atlas.png")).unwrap();
+    let png = png_bytes(&atlas());
+    let (bin, views) = gltf_cube_buffer(&png);
+    std::fs::write(dir.0.join("cube.bin"), &bin).unwrap();
+    let buffer = format!(r#"{{"uri": "cube.bin", "byteLength": {}}}"#, bin.len());
+    let gltf = gltf_cube_json(&buffer, &views, r#"{"uri": "atlas.png"}"#).into_bytes();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    for (name, original) in [("d.obj", &obj), ("d.gltf", &gltf)] {
+        for _ in 0..150 {
+            let mut bytes = original.clone();
+            match rng.random_range(0..3) {
+                0 => bytes.truncate(rng.random_range(0..bytes.len())),
+                1 => {
+                    for _ in 0..rng.random_range(1..4) {
+                        let i = rng.random_range(0..bytes.len());
+                        bytes[i] = rng.random();
+                    }
+                }
+                _ => {
+                    let i = rng.random_range(0..bytes.len());
+                    let digit = b"0123456789-%/."[rng.random_range(0..14)];
+                    bytes.insert(i, digit);
+                }
+            }
+            let path = dir.0.join(name);
+            std::fs::write(&path, &bytes).unwrap();
+            match load_scan(&path) {
+                Ok((mesh, _)) => {
+                    assert_eq!(mesh.validate(), Ok(()));
+                    let cam = Camera::orbit(
+                        0.0,
+                        0.0,
+                        3.0,
+                        Vec3::ZERO,
+                        Intrinsics::protocol_default(8, 8),
+                    );
+                    render(&mesh, &cam, &RenderOptions::default()).unwrap();
+                }
+                Err(e) => assert!(e.to_string().contains(name), "{e}"),
+            }
+        }
+    }
 }
