@@ -24,6 +24,8 @@ enum Command {
     Bench(commands::bench::BenchArgs),
     /// PSNR, SSIM and LPIPS of images (or folders of images) against ground truth.
     Metrics(commands::metrics::MetricsArgs),
+    /// Train the full-attention teacher (AdamW, warm-up + cosine, checkpoints, validation).
+    TrainTeacher(commands::train::TrainTeacherArgs),
 }
 
 fn main() {
@@ -33,6 +35,7 @@ fn main() {
         Command::Info(args) => args.run(),
         Command::Bench(args) => args.run(),
         Command::Metrics(args) => args.run(),
+        Command::TrainTeacher(args) => args.run(),
     };
     if let Err(err) = result {
         eprintln!("error: {err:#}");

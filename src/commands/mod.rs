@@ -5,3 +5,4 @@ pub mod bench;
 pub mod data;
 pub mod info;
 pub mod metrics;
+pub mod train;

@@ -79,6 +79,22 @@ pub struct SyntheticDataConfig {
     pub test_fraction: f32,
     /// Supersampling of the renderer (s x s samples per pixel).
     pub supersample: u32,
+    /// Background colour the views are composited on, components in [0, 1].
+    pub background: [f32; 3],
+}
+
+impl SyntheticDataConfig {
+    /// The options of prism-data's synthesiser.
+    pub fn synth_options(&self) -> prism_data::synth::SynthOptions {
+        prism_data::synth::SynthOptions {
+            subjects: self.subjects,
+            resolution: self.resolution,
+            seed: self.seed,
+            test_fraction: self.test_fraction,
+            background: self.background,
+            supersample: self.supersample,
+        }
+    }
 }
 
 /// A training config file: every section a training run reads.
@@ -178,6 +194,7 @@ impl TrainingConfig {
             ("train.checkpoint_every", t.checkpoint_every),
             ("train.keep_checkpoints", t.keep_checkpoints),
             ("train.validation_views", t.validation_views),
+            ("train.max_non_finite_steps", t.max_non_finite_steps),
         ];
         for (field, value) in positive {
             if value == 0 {
@@ -237,6 +254,12 @@ impl TrainingConfig {
         }
         if d.supersample == 0 {
             return fail("data.supersample", "must be at least 1".into());
+        }
+        if d.background.iter().any(|c| !(0.0..=1.0).contains(c)) {
+            return fail(
+                "data.background",
+                format!("{:?} has a component outside [0, 1]", d.background),
+            );
         }
         Ok(())
     }
