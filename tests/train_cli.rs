@@ -164,3 +164,38 @@ fn bad_input_is_one_clear_line() {
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     assert!(stderr.contains("/nonexistent/ckpt"), "{stderr}");
 }
+
+/// Teacher training on the tiny synthetic people through the binary, on two (CPU) devices:
+/// the loss falls, validation improves on the initial model, and the run reports the
+/// copy-the-source baseline, its metrics and where the sample grid is.
+#[test]
+fn train_teacher_learns_on_the_synthetic_people() {
+    let dir = scratch("learn");
+    let mut config = tiny_config(150, 150);
+    config.train.lr_backbone = 3e-3;
+    config.train.lr_heads = 3e-3;
+    config.train.warmup_steps = 10;
+    let config = write_config(&dir, &config);
+    let run_dir = dir.join("run");
+    let out = run(prism(&config, &run_dir, &["--devices", "2"]));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    for expected in ["copy-the-source baseline", "initial model", "validation at step 150", "sample images"] {
+        assert!(stdout.contains(expected), "{expected}: {stdout}");
+    }
+    let lines = read_metrics(&run_dir.join("metrics.jsonl")).unwrap();
+    let losses: Vec<f64> = lines.iter().filter_map(|l| l["loss"].as_f64()).collect();
+    assert_eq!(losses.len(), 150);
+    assert!(lines.iter().filter(|l| l.get("loss").is_some()).all(|l| l.get("nvs_mse").is_some() && l.get("lr").is_some()));
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    assert!(mean(&losses[130..]) < 0.5 * mean(&losses[..10]), "loss did not fall");
+    let val: Vec<&serde_json::Value> = lines.iter().filter(|l| l.get("val_psnr").is_some()).collect();
+    assert_eq!(val.len(), 2, "initial and final validation");
+    let psnr = |l: &serde_json::Value| l["val_psnr"].as_f64().unwrap();
+    assert!(psnr(val[1]) > psnr(val[0]) + 5.0, "{val:?}");
+    let baseline = lines.iter().find_map(|l| l["copy_source_psnr"].as_f64()).unwrap();
+    assert!(baseline.is_finite() && baseline > 10.0, "{baseline}");
+    let grid = run_dir.join(val[1]["samples"].as_str().unwrap());
+    let image = image::open(&grid).unwrap();
+    assert_eq!((image.width(), image.height()), (3 * 32, 2 * 32), "2 views x (source, prediction, truth)");
+    assert_eq!(Checkpoint::read(&run_dir).unwrap().state.devices, 2);
+}

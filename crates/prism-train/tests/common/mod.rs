@@ -47,6 +47,13 @@ fn hit(blobs: &[Blob], camera: &Camera, x: u32, y: u32) -> Option<(Vec3, Vec3)> 
 
 /// Writes `subjects` subjects (the last one held out) at `res` x `res` into `root`.
 pub fn write_dataset(root: &Path, subjects: usize, res: u32) {
+    write_dataset_at_depth(root, subjects, res, 0.0);
+}
+
+/// As [`write_dataset`], with the subjects `depth` metres along +z from the cameras' orbit
+/// centre: off the centre, a subject shifts across the image from view to view (parallax), so
+/// copying the source view is a poor prediction and the views must be synthesised.
+pub fn write_dataset_at_depth(root: &Path, subjects: usize, res: u32, depth: f32) {
     let protocol = ViewingProtocol::default();
     let names: Vec<String> = (0..subjects).map(|i| format!("s{i}")).collect();
     let meta = DatasetMeta {
@@ -61,7 +68,7 @@ pub fn write_dataset(root: &Path, subjects: usize, res: u32) {
             train: names[..subjects - 1].to_vec(),
             test: names[subjects - 1..].to_vec(),
         },
-        generator: serde_json::json!({"kind": "blob-test", "res": res}),
+        generator: serde_json::json!({"kind": "blob-test", "res": res, "depth": depth}),
     };
     let writer = DatasetWriter::open(root, meta).unwrap();
     let light = Vec3::new(0.5, 0.8, 0.6).normalize();
@@ -72,11 +79,11 @@ pub fn write_dataset(root: &Path, subjects: usize, res: u32) {
         let f = s as f32 / subjects as f32;
         let blobs = [
             Blob {
-                centre: Vec3::new(0.0, 1.55 + 0.05 * f, 0.0),
+                centre: Vec3::new(0.0, 1.55 + 0.05 * f, depth),
                 radii: Vec3::splat(0.13),
             },
             Blob {
-                centre: Vec3::new(0.0, 1.0, 0.0),
+                centre: Vec3::new(0.0, 1.0, depth),
                 radii: Vec3::new(0.28 + 0.06 * f, 0.45, 0.16),
             },
         ];
