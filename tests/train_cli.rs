@@ -112,7 +112,10 @@ fn a_killed_run_leaves_a_loadable_checkpoint_and_resumes_exactly() {
     child.wait().unwrap();
     let checkpoints = list_checkpoints(&killed).unwrap();
     let (step, last) = checkpoints.last().unwrap().clone();
-    assert!(step >= 10 && step < 60, "killed mid-run, at checkpoint {step}");
+    assert!(
+        (10..60).contains(&step),
+        "killed mid-run, at checkpoint {step}"
+    );
     // The checkpoint loads, with its weights and attention kinds.
     let checkpoint = Checkpoint::read(&last).unwrap();
     assert_eq!(checkpoint.state.step, step);
@@ -124,7 +127,10 @@ fn a_killed_run_leaves_a_loadable_checkpoint_and_resumes_exactly() {
     // Resumed, it ends where an uninterrupted run ends, bit for bit.
     let out = run(prism(&config, &killed, &["--resume"]));
     let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(stdout.contains(&format!("trained steps {step}..60")), "{stdout}");
+    assert!(
+        stdout.contains(&format!("trained steps {step}..60")),
+        "{stdout}"
+    );
     let straight = dir.join("straight");
     run(prism(&config, &straight, &[]));
     assert_eq!(weights(&killed), weights(&straight));
@@ -148,18 +154,24 @@ fn bad_input_is_one_clear_line() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     assert!(
-        stderr.starts_with("error:") && stderr.contains("broken.toml") && stderr.contains("train.batch_size"),
+        stderr.starts_with("error:")
+            && stderr.contains("broken.toml")
+            && stderr.contains("train.batch_size"),
         "{stderr}"
     );
     assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
 
     let good = write_config(&dir, &tiny_config(2, 1));
-    let out = prism(&good, &dir.join("empty"), &["--resume"]).output().unwrap();
+    let out = prism(&good, &dir.join("empty"), &["--resume"])
+        .output()
+        .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     assert!(stderr.contains("no checkpoint to resume"), "{stderr}");
 
-    let out = prism(&good, &dir.join("run2"), &["--init", "/nonexistent/ckpt"]).output().unwrap();
+    let out = prism(&good, &dir.join("run2"), &["--init", "/nonexistent/ckpt"])
+        .output()
+        .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     assert!(stderr.contains("/nonexistent/ckpt"), "{stderr}");
@@ -179,23 +191,46 @@ fn train_teacher_learns_on_the_synthetic_people() {
     let run_dir = dir.join("run");
     let out = run(prism(&config, &run_dir, &["--devices", "2"]));
     let stdout = String::from_utf8_lossy(&out.stdout);
-    for expected in ["copy-the-source baseline", "initial model", "validation at step 150", "sample images"] {
+    for expected in [
+        "copy-the-source baseline",
+        "initial model",
+        "validation at step 150",
+        "sample images",
+    ] {
         assert!(stdout.contains(expected), "{expected}: {stdout}");
     }
     let lines = read_metrics(&run_dir.join("metrics.jsonl")).unwrap();
     let losses: Vec<f64> = lines.iter().filter_map(|l| l["loss"].as_f64()).collect();
     assert_eq!(losses.len(), 150);
-    assert!(lines.iter().filter(|l| l.get("loss").is_some()).all(|l| l.get("nvs_mse").is_some() && l.get("lr").is_some()));
+    assert!(
+        lines
+            .iter()
+            .filter(|l| l.get("loss").is_some())
+            .all(|l| l.get("nvs_mse").is_some() && l.get("lr").is_some())
+    );
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
-    assert!(mean(&losses[130..]) < 0.5 * mean(&losses[..10]), "loss did not fall");
-    let val: Vec<&serde_json::Value> = lines.iter().filter(|l| l.get("val_psnr").is_some()).collect();
+    assert!(
+        mean(&losses[130..]) < 0.5 * mean(&losses[..10]),
+        "loss did not fall"
+    );
+    let val: Vec<&serde_json::Value> = lines
+        .iter()
+        .filter(|l| l.get("val_psnr").is_some())
+        .collect();
     assert_eq!(val.len(), 2, "initial and final validation");
     let psnr = |l: &serde_json::Value| l["val_psnr"].as_f64().unwrap();
     assert!(psnr(val[1]) > psnr(val[0]) + 5.0, "{val:?}");
-    let baseline = lines.iter().find_map(|l| l["copy_source_psnr"].as_f64()).unwrap();
+    let baseline = lines
+        .iter()
+        .find_map(|l| l["copy_source_psnr"].as_f64())
+        .unwrap();
     assert!(baseline.is_finite() && baseline > 10.0, "{baseline}");
     let grid = run_dir.join(val[1]["samples"].as_str().unwrap());
     let image = image::open(&grid).unwrap();
-    assert_eq!((image.width(), image.height()), (3 * 32, 2 * 32), "2 views x (source, prediction, truth)");
+    assert_eq!(
+        (image.width(), image.height()),
+        (3 * 32, 2 * 32),
+        "2 views x (source, prediction, truth)"
+    );
     assert_eq!(Checkpoint::read(&run_dir).unwrap().state.devices, 2);
 }

@@ -19,10 +19,10 @@
 use std::fs;
 use std::path::{Path, PathBuf};
 
+use burn::module::Module;
 use burn::optim::lr_scheduler::LrSchedulerRecord;
 use burn::optim::lr_scheduler::module_lr_scheduler::ModuleLrScheduler;
 use burn::optim::{ModuleOptimizer, OptimizerRecord};
-use burn::module::Module;
 use burn::tensor::Device;
 use prism_model::{AttentionKind, Prism, PrismConfig};
 use serde::{Deserialize, Serialize};
@@ -254,7 +254,11 @@ pub fn remove_partial_checkpoints(run: &Path) -> Result<()> {
     }
     for entry in fs::read_dir(&dir).map_err(|e| TrainError::io(&dir, e))? {
         let entry = entry.map_err(|e| TrainError::io(&dir, e))?;
-        if entry.file_name().to_string_lossy().ends_with(PARTIAL_SUFFIX) {
+        if entry
+            .file_name()
+            .to_string_lossy()
+            .ends_with(PARTIAL_SUFFIX)
+        {
             fs::remove_dir_all(entry.path()).map_err(|e| TrainError::io(entry.path(), e))?;
         }
     }
@@ -280,7 +284,11 @@ pub struct CheckpointContents<'a> {
 ///
 /// # Errors
 /// I/O or serialisation errors, naming the file.
-pub fn save_checkpoint(run: &Path, contents: &CheckpointContents<'_>, keep: usize) -> Result<PathBuf> {
+pub fn save_checkpoint(
+    run: &Path,
+    contents: &CheckpointContents<'_>,
+    keep: usize,
+) -> Result<PathBuf> {
     let dir = checkpoint_dir(run, contents.state.step);
     let partial = dir.with_file_name(format!(
         "{}{PARTIAL_SUFFIX}",
@@ -308,10 +316,14 @@ pub fn save_checkpoint(run: &Path, contents: &CheckpointContents<'_>, keep: usiz
         .to_record()
         .save(partial.join(files::SCHEDULER))
         .map_err(|e| record_error(files::SCHEDULER, e))?;
-    write_json(&partial.join(files::ATTENTION), &contents.model.attention_kinds())?;
+    write_json(
+        &partial.join(files::ATTENTION),
+        &contents.model.attention_kinds(),
+    )?;
     write_json(&partial.join(files::STATE), contents.state)?;
     let config_path = partial.join(files::CONFIG);
-    fs::write(&config_path, contents.config.to_toml()).map_err(|e| TrainError::io(&config_path, e))?;
+    fs::write(&config_path, contents.config.to_toml())
+        .map_err(|e| TrainError::io(&config_path, e))?;
     if dir.exists() {
         fs::remove_dir_all(&dir).map_err(|e| TrainError::io(&dir, e))?;
     }
@@ -404,8 +416,16 @@ pub fn check_architecture(checkpoint: &Checkpoint, model: &PrismConfig) -> Resul
         ("model.width", theirs.width, model.width),
         ("model.heads", theirs.heads, model.heads),
         ("model.patch_size", theirs.patch_size, model.patch_size),
-        ("model.stage_one_blocks", theirs.stage_one_blocks, model.stage_one_blocks),
-        ("model.stage_three_blocks", theirs.stage_three_blocks, model.stage_three_blocks),
+        (
+            "model.stage_one_blocks",
+            theirs.stage_one_blocks,
+            model.stage_one_blocks,
+        ),
+        (
+            "model.stage_three_blocks",
+            theirs.stage_three_blocks,
+            model.stage_three_blocks,
+        ),
         ("model.mlp_ratio", theirs.mlp_ratio, model.mlp_ratio),
     ];
     match fields.iter().find(|(_, a, b)| a != b) {

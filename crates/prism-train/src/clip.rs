@@ -32,9 +32,7 @@ pub fn global_norm<M: Module>(module: &M, grads: &GradientsParams) -> f64 {
     }
     let mut visitor = SumSquares { grads, total: None };
     module.visit(&mut visitor);
-    visitor
-        .total
-        .map_or(0.0, |t| t.into_scalar::<f64>().sqrt())
+    visitor.total.map_or(0.0, |t| t.into_scalar::<f64>().sqrt())
 }
 
 /// Multiplies every gradient of `module`'s parameters in `grads` by `factor`.
@@ -71,7 +69,10 @@ pub fn clip_global_norm<M: Module>(
 ) -> (GradientsParams, f64) {
     let norm = global_norm(module, &grads);
     if max_norm > 0.0 && norm.is_finite() && norm > max_norm {
-        (scale_gradients(module, grads, max_norm / (norm + 1e-6)), norm)
+        (
+            scale_gradients(module, grads, max_norm / (norm + 1e-6)),
+            norm,
+        )
     } else {
         (grads, norm)
     }

@@ -210,7 +210,10 @@ impl TrainingConfig {
         if t.validation_views > 100 {
             return fail(
                 "train.validation_views",
-                format!("{} is more than the 100 evaluation views", t.validation_views),
+                format!(
+                    "{} is more than the 100 evaluation views",
+                    t.validation_views
+                ),
             );
         }
         for (field, value) in [
@@ -221,10 +224,7 @@ impl TrainingConfig {
                 return fail(field, format!("{value} is not a positive number"));
             }
             if value < t.min_lr {
-                return fail(
-                    field,
-                    format!("{value} is below train.min_lr {}", t.min_lr),
-                );
+                return fail(field, format!("{value} is below train.min_lr {}", t.min_lr));
             }
         }
         for (field, value) in [
@@ -328,7 +328,10 @@ mod tests {
         let paper = TrainingConfig::load(configs_dir().join("paper.toml")).unwrap();
         assert_eq!(paper.train.weight_decay, 1e-5);
         assert_eq!(paper.train.min_lr, 1e-6);
-        assert_eq!((paper.train.lr_backbone, paper.train.lr_heads), (1e-5, 2e-4));
+        assert_eq!(
+            (paper.train.lr_backbone, paper.train.lr_heads),
+            (1e-5, 2e-4)
+        );
         assert_eq!(paper.losses, LossWeights::new());
     }
 
@@ -360,7 +363,10 @@ mod tests {
         );
         let bad_lr = regex_replace(&text, "lr_heads", "1e-9");
         let err = parse(&bad_lr).unwrap_err().to_string();
-        assert!(err.contains("train.lr_heads") && err.contains("min_lr"), "{err}");
+        assert!(
+            err.contains("train.lr_heads") && err.contains("min_lr"),
+            "{err}"
+        );
         let bad_fraction = regex_replace(&text, "test_fraction", "1.5");
         let err = parse(&bad_fraction).unwrap_err().to_string();
         assert!(err.contains("data.test_fraction"), "{err}");
@@ -378,9 +384,7 @@ mod tests {
         text.lines()
             .map(|line| {
                 let trimmed = line.trim_start();
-                if trimmed.starts_with(key)
-                    && trimmed[key.len()..].trim_start().starts_with('=')
-                {
+                if trimmed.starts_with(key) && trimmed[key.len()..].trim_start().starts_with('=') {
                     format!("{key} = {value}")
                 } else {
                     line.to_string()

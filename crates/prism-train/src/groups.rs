@@ -72,7 +72,10 @@ mod tests {
 
         let path = crate::config::configs_dir().join("tiny.toml");
         let config = prism_model::load_config(path).unwrap().model;
-        let device = prism_data::BackendKind::Ndarray.device().unwrap().autodiff();
+        let device = prism_data::BackendKind::Ndarray
+            .device()
+            .unwrap()
+            .autodiff();
         let trainee = Trainee {
             prism: config.init(&device),
         };

@@ -110,9 +110,11 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let mut log = MetricsLog::open(dir.path(), None).unwrap();
         for step in 1..=5 {
-            log.write(&json!({"step": step, "loss": 1.0 / step as f64})).unwrap();
+            log.write(&json!({"step": step, "loss": 1.0 / step as f64}))
+                .unwrap();
         }
-        log.write(&json!({"step": 4, "val_psnr": f64::NAN})).unwrap();
+        log.write(&json!({"step": 4, "val_psnr": f64::NAN}))
+            .unwrap();
         drop(log);
         let mut log = MetricsLog::open(dir.path(), Some(3)).unwrap();
         log.write(&json!({"step": 4, "loss": 0.2})).unwrap();

@@ -24,7 +24,7 @@ use serde_json::{Value, json};
 
 use crate::cache::ensure_synthetic_dataset;
 use crate::checkpoint::{
-    Checkpoint, CheckpointContents, CheckpointState, CHECKPOINT_FORMAT, CHECKPOINT_VERSION,
+    CHECKPOINT_FORMAT, CHECKPOINT_VERSION, Checkpoint, CheckpointContents, CheckpointState,
     check_architecture, check_resumable, latest_checkpoint, remove_partial_checkpoints,
     save_checkpoint,
 };
@@ -348,7 +348,8 @@ pub fn train(config: &TrainingConfig, task: &dyn Task, options: &RunOptions) -> 
                 optimizer: &optimizer,
                 scheduler: &scheduler,
             };
-            summary.last_checkpoint = Some(save_checkpoint(run, &contents, train.keep_checkpoints)?);
+            summary.last_checkpoint =
+                Some(save_checkpoint(run, &contents, train.keep_checkpoints)?);
         }
     }
     bar.finish_and_clear();
@@ -370,7 +371,10 @@ fn prepare_run_folder(
         })
     };
     if options.resume && options.init.is_some() {
-        return fail("--resume and --init cannot be combined: --resume continues the run's own checkpoint".into());
+        return fail(
+            "--resume and --init cannot be combined: --resume continues the run's own checkpoint"
+                .into(),
+        );
     }
     remove_partial_checkpoints(run)?;
     let latest = latest_checkpoint(run)?;

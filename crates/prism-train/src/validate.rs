@@ -101,11 +101,14 @@ impl Validator {
     /// also returns the sample grid (source, prediction, ground truth per row).
     pub fn validate(&self, model: &Prism) -> (ValidationScores, RgbImage) {
         let mut grid_rows = Vec::new();
-        let scores = self.score(|batch_source, source_rays, target_rays| {
-            model
-                .forward(batch_source, source_rays, target_rays, &[])
-                .image
-        }, Some(&mut grid_rows));
+        let scores = self.score(
+            |batch_source, source_rays, target_rays| {
+                model
+                    .forward(batch_source, source_rays, target_rays, &[])
+                    .image
+            },
+            Some(&mut grid_rows),
+        );
         (scores, grid(&grid_rows))
     }
 
@@ -154,10 +157,7 @@ impl Validator {
             }
             index += p.len();
         }
-        let means: Vec<[f64; 3]> = per_subject
-            .values()
-            .map(|v| mean_rows(v))
-            .collect();
+        let means: Vec<[f64; 3]> = per_subject.values().map(|v| mean_rows(v)).collect();
         let [psnr, ssim, lpips] = mean_rows(&means);
         ValidationScores { psnr, ssim, lpips }
     }
@@ -192,7 +192,9 @@ fn grid(rows: &[[Tensor<4>; 3]]) -> RgbImage {
             let plane = h * w;
             for y in 0..h {
                 for x in 0..w {
-                    let px = |ch: usize| (data[ch * plane + y * w + x].clamp(0.0, 1.0) * 255.0).round() as u8;
+                    let px = |ch: usize| {
+                        (data[ch * plane + y * w + x].clamp(0.0, 1.0) * 255.0).round() as u8
+                    };
                     out.put_pixel(
                         (c * w + x) as u32,
                         (r * h + y) as u32,

@@ -150,7 +150,11 @@ fn two_devices_train_like_one() {
     // whole batch's: the same weights up to float rounding.
     let diff = max_difference(&weights(one.path()), &weights(two.path()));
     assert!(diff < 1e-5, "max difference {diff}");
-    let loss = |dir: &Path| read_metrics(&dir.join("metrics.jsonl")).unwrap()[2]["loss"].as_f64().unwrap();
+    let loss = |dir: &Path| {
+        read_metrics(&dir.join("metrics.jsonl")).unwrap()[2]["loss"]
+            .as_f64()
+            .unwrap()
+    };
     assert!((loss(one.path()) - loss(two.path())).abs() < 1e-6);
 }
 
@@ -200,8 +204,15 @@ fn non_finite_steps_are_skipped_counted_and_stop_the_run() {
     let summary = train(&config, &PoisonedTask(vec![2, 3]), &options(out.path())).unwrap();
     assert_eq!((summary.steps, summary.skipped_steps), (5, 2));
     let at = |s: usize| weights(&out.path().join(format!("checkpoints/step-{s:08}")));
-    assert_eq!(max_difference(&at(2), &at(4)), 0.0, "skipped steps change nothing");
-    assert!(max_difference(&at(4), &at(5)) > 0.0, "a finite step trains again");
+    assert_eq!(
+        max_difference(&at(2), &at(4)),
+        0.0,
+        "skipped steps change nothing"
+    );
+    assert!(
+        max_difference(&at(4), &at(5)) > 0.0,
+        "a finite step trains again"
+    );
     let lines = read_metrics(&out.path().join("metrics.jsonl")).unwrap();
     let skipped: Vec<u64> = lines
         .iter()
@@ -215,7 +226,17 @@ fn non_finite_steps_are_skipped_counted_and_stop_the_run() {
     // Three in a row stop the run with a clear error.
     let out = tempfile::tempdir().unwrap();
     let err = train(&config, &PoisonedTask(vec![1, 2, 3]), &options(out.path())).unwrap_err();
-    assert!(matches!(err, TrainError::NonFinite { step: 4, count: 3, .. }), "{err}");
+    assert!(
+        matches!(
+            err,
+            TrainError::NonFinite {
+                step: 4,
+                count: 3,
+                ..
+            }
+        ),
+        "{err}"
+    );
     assert!(err.to_string().contains("3 steps in a row"), "{err}");
 }
 
@@ -227,18 +248,31 @@ fn checkpoints_are_pruned_and_other_configs_are_refused() {
     });
     let out = tempfile::tempdir().unwrap();
     train(&config, &TeacherTask::default(), &options(out.path())).unwrap();
-    let steps: Vec<usize> = list_checkpoints(out.path()).unwrap().iter().map(|(s, _)| *s).collect();
+    let steps: Vec<usize> = list_checkpoints(out.path())
+        .unwrap()
+        .iter()
+        .map(|(s, _)| *s)
+        .collect();
     assert_eq!(steps, vec![3, 4], "the last 2 kept");
     let checkpoint = Checkpoint::read(out.path()).unwrap();
     assert_eq!(checkpoint.state.step, 4);
     assert_eq!(checkpoint.attention.len(), 6);
     assert_eq!(checkpoint.config.to_toml(), config.to_toml());
-    for file in ["model.bpk", "optimizer.bpk", "scheduler.bpk", "state.json", "config.toml", "attention.json"] {
+    for file in [
+        "model.bpk",
+        "optimizer.bpk",
+        "scheduler.bpk",
+        "state.json",
+        "config.toml",
+        "attention.json",
+    ] {
         assert!(checkpoint.dir.join(file).is_file(), "{file}");
     }
 
     // A fresh run into a used folder is refused.
-    let err = train(&config, &TeacherTask::default(), &options(out.path())).unwrap_err().to_string();
+    let err = train(&config, &TeacherTask::default(), &options(out.path()))
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("--resume"), "{err}");
     // Resuming with another learning rate names the setting.
     let mut other = config.clone();
@@ -246,13 +280,20 @@ fn checkpoints_are_pruned_and_other_configs_are_refused() {
     let mut resume = options(out.path());
     resume.resume = true;
     resume.steps = Some(6);
-    let err = train(&other, &TeacherTask::default(), &resume).unwrap_err().to_string();
-    assert!(err.contains("train.lr_backbone") && err.contains("another config"), "{err}");
+    let err = train(&other, &TeacherTask::default(), &resume)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("train.lr_backbone") && err.contains("another config"),
+        "{err}"
+    );
     // Nothing to resume in an empty folder.
     let empty = tempfile::tempdir().unwrap();
     let mut resume_empty = options(empty.path());
     resume_empty.resume = true;
-    let err = train(&config, &TeacherTask::default(), &resume_empty).unwrap_err().to_string();
+    let err = train(&config, &TeacherTask::default(), &resume_empty)
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("no checkpoint"), "{err}");
 
     // --init starts a new run from the weights; another architecture is refused.
@@ -264,12 +305,17 @@ fn checkpoints_are_pruned_and_other_configs_are_refused() {
     assert_eq!((summary.start_step, summary.steps), (0, 1));
     let after = weights(fine.path());
     let moved = max_difference(&before, &after);
-    assert!(moved > 0.0 && moved < 0.05, "one step from the initial weights: {moved}");
+    assert!(
+        moved > 0.0 && moved < 0.05,
+        "one step from the initial weights: {moved}"
+    );
     let wider = tiny_config(1, |c| c.model.width = 128);
     let other_out = tempfile::tempdir().unwrap();
     let mut init = options(other_out.path());
     init.init = Some(out.path().to_path_buf());
-    let err = train(&wider, &TeacherTask::default(), &init).unwrap_err().to_string();
+    let err = train(&wider, &TeacherTask::default(), &init)
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("model.width"), "{err}");
 }
 
@@ -306,7 +352,10 @@ fn teacher_training_learns_views_that_copying_cannot_give() {
     let last = summary.last.unwrap();
     println!("copy {baseline:?}\ninitial {initial:?}\nfinal {last:?}");
     assert!(last.psnr > initial.psnr + 5.0, "{initial:?} -> {last:?}");
-    assert!(last.psnr > baseline.psnr + 1.0, "copy {baseline:?}, final {last:?}");
+    assert!(
+        last.psnr > baseline.psnr + 1.0,
+        "copy {baseline:?}, final {last:?}"
+    );
     assert!(last.ssim > initial.ssim && last.lpips < initial.lpips);
     let _ = std::fs::remove_dir_all(data);
 }

@@ -117,7 +117,8 @@ pub fn write_dataset_at_depth(root: &Path, subjects: usize, res: u32, depth: f32
                     height: res,
                     points: (0..res * res)
                         .map(|i| {
-                            hit(&blobs, &cam, i % res, i / res).map_or([0.0; 3], |(p, _)| p.to_array())
+                            hit(&blobs, &cam, i % res, i / res)
+                                .map_or([0.0; 3], |(p, _)| p.to_array())
                         })
                         .collect(),
                 });
