@@ -359,3 +359,24 @@ fn teacher_training_learns_views_that_copying_cannot_give() {
     assert!(last.ssim > initial.ssim && last.lpips < initial.lpips);
     let _ = std::fs::remove_dir_all(data);
 }
+
+#[test]
+fn lpips_enters_the_objective_and_the_log() {
+    let config = tiny_config(2, |c| c.losses.lpips = 0.5);
+    let out = tempfile::tempdir().unwrap();
+    train(&config, &TeacherTask::default(), &options(out.path())).unwrap();
+    let steps: Vec<serde_json::Value> = read_metrics(&out.path().join("metrics.jsonl"))
+        .unwrap()
+        .into_iter()
+        .filter(|l| l.get("loss").is_some())
+        .collect();
+    assert_eq!(steps.len(), 2);
+    for line in steps {
+        let mse = line["nvs_mse"].as_f64().unwrap();
+        let lpips = line["nvs_lpips"].as_f64().unwrap();
+        let loss = line["loss"].as_f64().unwrap();
+        assert!(lpips > 0.0 && lpips < 1.5, "{line}");
+        // L = l_nvs (MSE + l_lpips LPIPS) with l_nvs = 1.
+        assert!((loss - (mse + 0.5 * lpips)).abs() < 1e-5, "{line}");
+    }
+}
