@@ -14,11 +14,17 @@ struct Cli {
 
 /// The subcommands; each variant's arguments and `run` live in `commands/`.
 #[derive(Subcommand, Debug)]
-enum Command {}
+enum Command {
+    /// The body model (SMPL-X layout) and the procedural humanoid.
+    #[command(subcommand)]
+    Body(commands::body::BodyCommand),
+}
 
 fn main() {
     let cli = Cli::parse();
-    let result: anyhow::Result<()> = match cli.command {};
+    let result: anyhow::Result<()> = match cli.command {
+        Command::Body(cmd) => cmd.run(),
+    };
     if let Err(err) = result {
         eprintln!("error: {err:#}");
         std::process::exit(1);
