@@ -9,13 +9,19 @@
 pub mod backend;
 pub mod body;
 pub mod camera;
+pub mod material;
 pub mod mesh;
 pub mod people;
 pub mod protocol;
+pub mod raster;
 pub mod rays;
+pub mod scan;
 
 pub use backend::{BackendError, BackendKind};
 pub use body::{BodyError, BodyLayer, BodyModel, BodyParams};
 pub use camera::{Camera, Intrinsics};
-pub use mesh::Mesh;
+pub use material::{Material, Shading, Texture};
+pub use mesh::{Mesh, MeshError};
 pub use protocol::{Placement, ViewAngles, ViewingProtocol};
+pub use raster::{RenderError, RenderOptions, RenderOutput, render};
+pub use scan::{Facing, ScanError, ScanOptions, UpAxis, load_scan, normalise};
