@@ -18,12 +18,25 @@ enum Command {
     /// The body model (SMPL-X layout) and the procedural humanoid.
     #[command(subcommand)]
     Body(commands::body::BodyCommand),
+    /// Datasets: synthesise, render from scans, validate.
+    #[command(subcommand)]
+    Data(commands::data::DataCommand),
+    /// Size and cost of a model config: parameters, attention kinds, tokens, FLOPs.
+    Info(commands::info::InfoArgs),
+    /// Benchmarks (forward time of the model, ...).
+    Bench(commands::bench::BenchArgs),
+    /// PSNR, SSIM and LPIPS of images (or folders of images) against ground truth.
+    Metrics(commands::metrics::MetricsArgs),
 }
 
 fn main() {
     let cli = Cli::parse();
-    let result: anyhow::Result<()> = match cli.command {
+    let result = match cli.command {
         Command::Body(cmd) => cmd.run(),
+        Command::Data(cmd) => cmd.run(),
+        Command::Info(args) => args.run(),
+        Command::Bench(args) => args.run(),
+        Command::Metrics(args) => args.run(),
     };
     if let Err(err) = result {
         eprintln!("error: {err:#}");

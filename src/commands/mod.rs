@@ -1,4 +1,8 @@
 //! One module per subcommand group: each holds its clap arguments and a `run` that calls the
 //! library.
 
+pub mod bench;
 pub mod body;
+pub mod data;
+pub mod info;
+pub mod metrics;

@@ -9,6 +9,7 @@
 pub mod backend;
 pub mod body;
 pub mod camera;
+pub mod dataset;
 pub mod material;
 pub mod mesh;
 pub mod people;

@@ -84,7 +84,7 @@ mod tests {
         );
         let t = plucker_rays(&[a, b], &device);
         assert_eq!(t.dims(), [2, 6, 4, 6]);
-        let values = t.into_data().into_vec::<f32>().unwrap();
+        let values = t.into_data().try_into_vec::<f32>().unwrap();
         for (bi, cam) in [a, b].iter().enumerate() {
             for (x, y) in [(0u32, 0u32), (5, 3), (2, 1)] {
                 let r = cam.plucker(x, y);

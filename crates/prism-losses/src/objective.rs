@@ -1,0 +1,262 @@
+//! The training objective (paper Sec. 3.3):
+//! `L = l_nvs L_nvs + l_gs L_gs + l_pts L_pts + l_smplx L_smplx + l_distill L_distill`,
+//! with `L_nvs = MSE + l_lpips LPIPS` and `L_gs` alike.
+
+use burn::config::Config;
+use burn::tensor::Tensor;
+
+use crate::{
+    DistillInputs, LossError, Lpips, PointLoss, SmplxParams, distill_loss, point_loss, smplx_loss,
+};
+
+/// Weights of the objective: the `[losses]` section of the TOML configs. Defaults are the
+/// paper's. A term whose weight is 0 is not computed (and not reported).
+#[derive(Config, Debug, PartialEq)]
+pub struct LossWeights {
+    /// `l_nvs`, weight of the NVS decoder's image loss `L_nvs`.
+    #[config(default = 1.0)]
+    pub nvs: f64,
+    /// `l_gs`, weight of the 3DGS head's image loss `L_gs`.
+    #[config(default = 1.0)]
+    pub gs: f64,
+    /// `l_pts`, weight of the point-branch loss `L_pts`.
+    #[config(default = 100.0)]
+    pub pts: f64,
+    /// `l_smplx`, weight of the SMPL-X parameter loss `L_smplx`.
+    #[config(default = 1.0)]
+    pub smplx: f64,
+    /// `l_distill`, weight of the hidden-state distillation loss `L_distill`.
+    #[config(default = 1.0)]
+    pub distill: f64,
+    /// `l_lpips`, weight of LPIPS inside `L_nvs` and `L_gs` (0 skips LPIPS entirely).
+    #[config(default = 1.0)]
+    pub lpips: f64,
+    /// `a`, weight of the confidence regulariser `-a log C` of `L_pts`.
+    #[config(default = 0.2)]
+    pub confidence_alpha: f64,
+}
+
+/// A predicted image batch and its target, `[B, 3, H, W]` in [0, 1].
+#[derive(Clone, Debug)]
+pub struct ImagePair {
+    /// The prediction.
+    pub pred: Tensor<4>,
+    /// The ground truth.
+    pub gt: Tensor<4>,
+}
+
+/// Inputs of `L_pts` (see [`point_loss`]).
+#[derive(Clone, Debug)]
+pub struct PointInputs {
+    /// Predicted world points per source pixel, `[B, 3, H, W]`.
+    pub points: Tensor<4>,
+    /// Ground-truth points, `[B, 3, H, W]`.
+    pub points_gt: Tensor<4>,
+    /// Predicted confidence `C > 0`, `[B, 1, H, W]`.
+    pub confidence: Tensor<4>,
+    /// Foreground mask (foreground where > 0.5), `[B, 1, H, W]`.
+    pub mask: Tensor<4>,
+}
+
+/// Inputs of `L_smplx` (see [`smplx_loss`]).
+#[derive(Clone, Debug)]
+pub struct SmplxInputs {
+    /// The regressed parameters.
+    pub pred: SmplxParams,
+    /// The fitted parameters.
+    pub gt: SmplxParams,
+    /// `[B]`, 1 where the subject has a fit, 0 where not; `None`: all have one.
+    pub has_fit: Option<Tensor<1>>,
+}
+
+/// What one training step has to supervise; absent parts are not computed.
+#[derive(Clone, Debug, Default)]
+pub struct LossInputs {
+    /// NVS decoder output and target view.
+    pub nvs: Option<ImagePair>,
+    /// 3DGS head render and target view.
+    pub gs: Option<ImagePair>,
+    /// Point-branch prediction and targets.
+    pub pts: Option<PointInputs>,
+    /// SMPL-X branch prediction and fit.
+    pub smplx: Option<SmplxInputs>,
+    /// Student and teacher hidden states.
+    pub distill: Option<DistillInputs>,
+}
+
+impl LossInputs {
+    /// No inputs yet.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// With the NVS decoder's prediction and the target.
+    pub fn with_nvs(mut self, pred: Tensor<4>, gt: Tensor<4>) -> Self {
+        self.nvs = Some(ImagePair { pred, gt });
+        self
+    }
+
+    /// With the 3DGS render and the target.
+    pub fn with_gs(mut self, pred: Tensor<4>, gt: Tensor<4>) -> Self {
+        self.gs = Some(ImagePair { pred, gt });
+        self
+    }
+
+    /// With the point branch's points and confidence and their targets.
+    pub fn with_pts(mut self, pts: PointInputs) -> Self {
+        self.pts = Some(pts);
+        self
+    }
+
+    /// With the SMPL-X branch's parameters and the fit.
+    pub fn with_smplx(mut self, smplx: SmplxInputs) -> Self {
+        self.smplx = Some(smplx);
+        self
+    }
+
+    /// With student and teacher hidden states of the distilled layers.
+    pub fn with_distill(mut self, student: Vec<Tensor<3>>, teacher: Vec<Tensor<3>>) -> Self {
+        self.distill = Some(DistillInputs { student, teacher });
+        self
+    }
+}
+
+/// The value of every computed term, unweighted, plus the weighted `total`, each `[1]`.
+///
+/// Names: `nvs_mse`, `nvs_lpips`, `gs_mse`, `gs_lpips`, `pts`, `smplx`, `distill` (in this
+/// order, those computed only) and `total`.
+#[derive(Clone, Debug)]
+pub struct LossTerms {
+    /// `L`, the weighted sum: what to call `backward` on.
+    pub total: Tensor<1>,
+    /// The computed terms, unweighted, in the order above.
+    pub terms: Vec<(&'static str, Tensor<1>)>,
+}
+
+impl LossTerms {
+    /// A term by name (`"total"` included); `None` when it was not computed.
+    pub fn get(&self, name: &str) -> Option<&Tensor<1>> {
+        if name == "total" {
+            return Some(&self.total);
+        }
+        self.terms.iter().find(|(n, _)| *n == name).map(|(_, t)| t)
+    }
+
+    /// Names of the computed terms, then `"total"`.
+    pub fn names(&self) -> Vec<&'static str> {
+        self.terms
+            .iter()
+            .map(|(n, _)| *n)
+            .chain(["total"])
+            .collect()
+    }
+
+    /// Every term and the total read back as numbers, for logging (synchronises the device).
+    pub fn values(&self) -> Vec<(&'static str, f64)> {
+        self.terms
+            .iter()
+            .map(|(n, t)| (*n, t))
+            .chain([("total", &self.total)])
+            .map(|(n, t)| (n, t.clone().into_scalar::<f64>()))
+            .collect()
+    }
+}
+
+/// The objective: the loss weights and, when LPIPS is weighted, the LPIPS network.
+#[derive(Debug)]
+pub struct Objective {
+    weights: LossWeights,
+    lpips: Option<Lpips>,
+}
+
+impl Objective {
+    /// An objective with these weights. `lpips` must be given (on the training device, e.g.
+    /// from [`Lpips::load_default`]) when `weights.lpips` and an image weight are nonzero.
+    ///
+    /// # Errors
+    /// [`LossError::LpipsRequired`] when LPIPS is weighted but missing.
+    pub fn new(weights: LossWeights, lpips: Option<Lpips>) -> Result<Self, LossError> {
+        let images_weighted = weights.nvs != 0.0 || weights.gs != 0.0;
+        if weights.lpips != 0.0 && images_weighted && lpips.is_none() {
+            return Err(LossError::LpipsRequired(weights.lpips));
+        }
+        Ok(Self { weights, lpips })
+    }
+
+    /// The weights.
+    pub fn weights(&self) -> &LossWeights {
+        &self.weights
+    }
+
+    /// The LPIPS network, when loaded.
+    pub fn lpips(&self) -> Option<&Lpips> {
+        self.lpips.as_ref()
+    }
+
+    /// Evaluates every term that has inputs and a nonzero weight, and the weighted total
+    /// `L = l_nvs (MSE + l_lpips LPIPS)_nvs + l_gs (MSE + l_lpips LPIPS)_gs + l_pts L_pts +
+    /// l_smplx L_smplx + l_distill L_distill`. MSE and LPIPS are means over the batch.
+    ///
+    /// # Errors
+    /// [`LossError::NoTerms`] when nothing was computed.
+    pub fn forward(&self, inputs: LossInputs) -> Result<LossTerms, LossError> {
+        let w = &self.weights;
+        let mut terms: Vec<(&'static str, Tensor<1>)> = Vec::new();
+        let mut total: Option<Tensor<1>> = None;
+        let mut add = |weight: f64, value: &Tensor<1>| {
+            let weighted = value.clone().mul_scalar(weight);
+            total = Some(match total.take() {
+                Some(t) => t.add(weighted),
+                None => weighted,
+            });
+        };
+
+        let images = [
+            ("nvs_mse", "nvs_lpips", w.nvs, inputs.nvs),
+            ("gs_mse", "gs_lpips", w.gs, inputs.gs),
+        ];
+        for (mse_name, lpips_name, weight, pair) in images {
+            let Some(ImagePair { pred, gt }) = pair.filter(|_| weight != 0.0) else {
+                continue;
+            };
+            let mse = mse_loss(pred.clone(), gt.clone());
+            add(weight, &mse);
+            terms.push((mse_name, mse));
+            if let Some(lpips) = self.lpips.as_ref().filter(|_| w.lpips != 0.0) {
+                let value = lpips.forward(pred, gt).mean();
+                add(weight * w.lpips, &value);
+                terms.push((lpips_name, value));
+            }
+        }
+        if let Some(p) = inputs.pts.filter(|_| w.pts != 0.0) {
+            let loss: PointLoss = point_loss(
+                p.points,
+                p.points_gt,
+                p.confidence,
+                p.mask,
+                w.confidence_alpha,
+            );
+            let value = loss.total();
+            add(w.pts, &value);
+            terms.push(("pts", value));
+        }
+        if let Some(s) = inputs.smplx.filter(|_| w.smplx != 0.0) {
+            let value = smplx_loss(&s.pred, &s.gt, s.has_fit);
+            add(w.smplx, &value);
+            terms.push(("smplx", value));
+        }
+        if let Some(d) = inputs.distill.filter(|_| w.distill != 0.0) {
+            let value = distill_loss(&d.student, &d.teacher);
+            add(w.distill, &value);
+            terms.push(("distill", value));
+        }
+        let total = total.ok_or(LossError::NoTerms)?;
+        Ok(LossTerms { total, terms })
+    }
+}
+
+/// Mean squared error over all elements, `[1]`.
+pub fn mse_loss(pred: Tensor<4>, gt: Tensor<4>) -> Tensor<1> {
+    let d = pred.sub(gt);
+    d.clone().mul(d).mean()
+}

@@ -1,0 +1,270 @@
+//! Scoring rendered images against ground truth from files: the library side of
+//! `prism metrics` (and of `prism evaluate --pred/--gt`).
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use burn::tensor::{Device, Tensor, TensorData};
+use serde::Serialize;
+
+use crate::{LPIPS_MIN_SIDE, LossError, Lpips, SSIM_WINDOW, psnr, ssim};
+
+/// File extensions scored in folders (case-insensitive).
+pub const IMAGE_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
+
+/// PSNR (dB), SSIM and LPIPS of one image against its ground truth.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct ImageScores {
+    /// PSNR in dB (`+inf` for identical images, written `null` in JSON).
+    pub psnr: f64,
+    /// SSIM (scikit-image's Gaussian variant).
+    pub ssim: f64,
+    /// LPIPS v0.1 AlexNet.
+    pub lpips: f64,
+}
+
+impl ImageScores {
+    /// The mean of each metric over `scores` (NaN for an empty list).
+    pub fn mean(scores: &[ImageScores]) -> ImageScores {
+        let n = scores.len() as f64;
+        let sum = |f: fn(&ImageScores) -> f64| scores.iter().map(f).sum::<f64>() / n;
+        ImageScores {
+            psnr: sum(|s| s.psnr),
+            ssim: sum(|s| s.ssim),
+            lpips: sum(|s| s.lpips),
+        }
+    }
+}
+
+/// The scores of two folders: the mean and each image by file name.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct FolderScores {
+    /// The mean over the images of each metric.
+    pub mean: ImageScores,
+    /// Each image's scores, by file name.
+    pub images: BTreeMap<String, ImageScores>,
+}
+
+/// The result of [`score_paths`]: one pair of images or two folders.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(untagged)]
+pub enum Scores {
+    /// Two image files: `{"psnr", "ssim", "lpips"}` in JSON.
+    Pair(ImageScores),
+    /// Two folders: `{"mean": {...}, "images": {NAME: {...}}}` in JSON.
+    Folders(FolderScores),
+}
+
+impl Scores {
+    /// The scores as one JSON object (see the variants).
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).expect("scores serialise")
+    }
+
+    /// The scores as a readable table.
+    pub fn to_table(&self) -> String {
+        let mut out = String::new();
+        match self {
+            Scores::Pair(s) => {
+                let _ = writeln!(out, "PSNR   {:>10.4} dB", s.psnr);
+                let _ = writeln!(out, "SSIM   {:>10.6}", s.ssim);
+                let _ = writeln!(out, "LPIPS  {:>10.6}", s.lpips);
+            }
+            Scores::Folders(f) => {
+                let width = f.images.keys().map(String::len).max().unwrap_or(0).max(16);
+                let row = |out: &mut String, name: &str, s: &ImageScores| {
+                    let _ = writeln!(
+                        out,
+                        "{name:<width$}  {:>10.4}  {:>8.6}  {:>8.6}",
+                        s.psnr, s.ssim, s.lpips
+                    );
+                };
+                let _ = writeln!(
+                    out,
+                    "{:<width$}  {:>10}  {:>8}  {:>8}",
+                    "image", "PSNR (dB)", "SSIM", "LPIPS"
+                );
+                for (name, s) in &f.images {
+                    row(&mut out, name, s);
+                }
+                row(&mut out, &format!("mean of {}", f.images.len()), &f.mean);
+            }
+        }
+        out
+    }
+}
+
+/// An 8-bit (or 16-bit) PNG/JPEG/GIF as a `[1, 3, H, W]` tensor in [0, 1] on `device`:
+/// 8-bit values divided by 255, alpha dropped, grey replicated to RGB. The format is detected
+/// from the content, not the extension.
+///
+/// # Errors
+/// [`LossError::NotAnImage`] when the file cannot be read or decoded.
+pub fn load_image(path: &Path, device: &Device) -> Result<Tensor<4>, LossError> {
+    let not_an_image = |reason: String| LossError::NotAnImage {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let decoded = image::ImageReader::open(path)
+        .map_err(|e| not_an_image(e.to_string()))?
+        .with_guessed_format()
+        .map_err(|e| not_an_image(e.to_string()))?
+        .decode()
+        .map_err(|e| not_an_image(e.to_string()))?;
+    let (width, height) = (decoded.width() as usize, decoded.height() as usize);
+    let interleaved: Vec<f32> =
+        match decoded.color().bytes_per_pixel() / decoded.color().channel_count() {
+            1 => decoded
+                .to_rgb8()
+                .into_raw()
+                .into_iter()
+                .map(|v| f32::from(v) / 255.0)
+                .collect(),
+            _ => decoded.to_rgb32f().into_raw(),
+        };
+    let data = TensorData::new(interleaved, [1, height, width, 3]);
+    Ok(Tensor::<4>::from_data(data, device).permute([0, 3, 1, 2]))
+}
+
+/// PSNR, SSIM and LPIPS of each image of a batch, `[B, 3, H, W]` in [0, 1] (H, W >= 31).
+pub fn score_images(pred: Tensor<4>, gt: Tensor<4>, lpips: &Lpips) -> Vec<ImageScores> {
+    let p = psnr(pred.clone(), gt.clone());
+    let s = ssim(pred.clone(), gt.clone());
+    let l = lpips.distance(pred, gt);
+    p.into_iter()
+        .zip(s)
+        .zip(l)
+        .map(|((psnr, ssim), lpips)| ImageScores { psnr, ssim, lpips })
+        .collect()
+}
+
+/// Scores one image file against another (same size, at least 31 x 31).
+///
+/// # Errors
+/// When a file is not an image, the sizes differ, or the images are too small.
+pub fn score_files(
+    pred: &Path,
+    gt: &Path,
+    lpips: &Lpips,
+    device: &Device,
+) -> Result<ImageScores, LossError> {
+    let p = load_image(pred, device)?;
+    let g = load_image(gt, device)?;
+    let size = |t: &Tensor<4>| {
+        let [_, _, h, w] = t.dims();
+        [w as u32, h as u32]
+    };
+    if p.dims() != g.dims() {
+        return Err(LossError::SizeMismatch {
+            pred: pred.to_path_buf(),
+            pred_size: size(&p),
+            gt: gt.to_path_buf(),
+            gt_size: size(&g),
+        });
+    }
+    let [width, height] = size(&p);
+    let min = LPIPS_MIN_SIDE.max(SSIM_WINDOW) as u32;
+    if width < min || height < min {
+        return Err(LossError::TooSmall {
+            path: pred.to_path_buf(),
+            width,
+            height,
+            min,
+        });
+    }
+    Ok(score_images(p, g, lpips)[0])
+}
+
+/// Scores `pred` against `gt`: two image files, or two folders whose images (png, jpg, jpeg;
+/// other files are ignored, subfolders are not searched) are matched by file name.
+///
+/// # Errors
+/// When a path does not exist, one is a file and the other a folder, an image has no
+/// counterpart (all are listed), a folder holds no image, or any pair fails [`score_files`].
+pub fn score_paths(
+    pred: &Path,
+    gt: &Path,
+    lpips: &Lpips,
+    device: &Device,
+) -> Result<Scores, LossError> {
+    for path in [pred, gt] {
+        if !path.exists() {
+            return Err(LossError::Missing(path.to_path_buf()));
+        }
+    }
+    match (pred.is_dir(), gt.is_dir()) {
+        (false, false) => Ok(Scores::Pair(score_files(pred, gt, lpips, device)?)),
+        (true, true) => {
+            let pred_names = image_names(pred)?;
+            let gt_names = image_names(gt)?;
+            let mut unmatched: Vec<String> = pred_names
+                .iter()
+                .filter(|n| !gt_names.contains(n))
+                .map(|n| {
+                    format!(
+                        "`{}` has no `{}`",
+                        pred.join(n).display(),
+                        gt.join(n).display()
+                    )
+                })
+                .collect();
+            unmatched.extend(
+                gt_names
+                    .iter()
+                    .filter(|n| !pred_names.contains(n))
+                    .map(|n| {
+                        format!(
+                            "`{}` has no `{}`",
+                            gt.join(n).display(),
+                            pred.join(n).display()
+                        )
+                    }),
+            );
+            if !unmatched.is_empty() {
+                return Err(LossError::MissingCounterpart(unmatched));
+            }
+            let mut images = BTreeMap::new();
+            for name in pred_names {
+                let scores = score_files(&pred.join(&name), &gt.join(&name), lpips, device)?;
+                images.insert(name, scores);
+            }
+            let all: Vec<ImageScores> = images.values().copied().collect();
+            Ok(Scores::Folders(FolderScores {
+                mean: ImageScores::mean(&all),
+                images,
+            }))
+        }
+        _ => Err(LossError::KindMismatch {
+            pred: pred.to_path_buf(),
+            gt: gt.to_path_buf(),
+        }),
+    }
+}
+
+/// Sorted names of the image files directly inside `dir`.
+fn image_names(dir: &Path) -> Result<Vec<String>, LossError> {
+    let folder_error = |e: std::io::Error| LossError::Folder {
+        path: dir.to_path_buf(),
+        reason: e.to_string(),
+    };
+    let mut names = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(folder_error)? {
+        let path: PathBuf = entry.map_err(folder_error)?.path();
+        let is_image = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .is_some_and(|e| IMAGE_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()));
+        if path.is_file()
+            && is_image
+            && let Some(name) = path.file_name().and_then(|n| n.to_str())
+        {
+            names.push(name.to_string());
+        }
+    }
+    if names.is_empty() {
+        return Err(LossError::EmptyFolder(dir.to_path_buf()));
+    }
+    names.sort();
+    Ok(names)
+}

@@ -1,0 +1,421 @@
+//! Multi-head self-attention with two interchangeable kinds sharing one set of weights: full
+//! softmax attention (the teacher) and SANA-style linear attention (paper Sec. 3.4).
+
+use burn::config::Config;
+use burn::module::Module;
+use burn::nn::{Initializer, Linear, LinearConfig, RmsNorm, RmsNormConfig};
+use burn::tensor::activation::{relu, softmax};
+use burn::tensor::module::attention;
+use burn::tensor::ops::AttentionModuleOptions;
+use burn::tensor::{DType, Device, FloatDType, Tensor};
+use serde::{Deserialize, Serialize};
+
+/// The attention a transformer block computes. Both kinds use the same parameters, so a block
+/// switches kind without new weights (the paper's linear-attention stitching).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum AttentionKind {
+    /// `softmax(Q K^T / sqrt(d_h)) V`: quadratic in the number of tokens.
+    #[default]
+    Full,
+    /// `phi(Q) (phi(K)^T V) / (phi(Q) sum_j phi(K_j) + eps)`: linear in the number of tokens.
+    Linear,
+}
+
+impl AttentionKind {
+    /// The one-letter name used in compact patterns (`F` / `L`).
+    pub fn letter(self) -> char {
+        match self {
+            Self::Full => 'F',
+            Self::Linear => 'L',
+        }
+    }
+
+    /// The lower-case name (`full` / `linear`), as in config files.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Full => "full",
+            Self::Linear => "linear",
+        }
+    }
+}
+
+/// The feature map `phi` of linear attention, applied to queries and keys.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FeatureMap {
+    /// `phi(x) = max(x, 0)`, as in SANA (the default).
+    #[default]
+    Relu,
+    /// `phi(x) = elu(x) + 1`, the feature map the paper names as an example.
+    Elu1,
+}
+
+impl FeatureMap {
+    /// Applies `phi` element-wise.
+    pub fn apply<const D: usize>(self, x: Tensor<D>) -> Tensor<D> {
+        match self {
+            Self::Relu => relu(x),
+            // elu(x) + 1 = x + 1 for x > 0 and exp(x) for x <= 0.
+            Self::Elu1 => relu(x.clone()) + x.clamp_max(0.0).exp(),
+        }
+    }
+}
+
+/// Full softmax attention written as matmul, softmax, matmul (differentiable on every backend):
+/// `softmax(Q K^T / sqrt(d_h)) V` on `[B, H, T, d_h]` tensors.
+pub fn softmax_attention(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
+    let head_dim = q.dims()[3];
+    let scores = q.matmul(k.swap_dims(2, 3)) * (1.0 / (head_dim as f64).sqrt());
+    softmax(scores, 3).matmul(v)
+}
+
+/// Full softmax attention through Burn's fused attention op (no `T x T` matrix where the
+/// backend has a fused kernel): `softmax(Q K^T / sqrt(d_h)) V` on `[B, H, T, d_h]` tensors.
+/// Used for inference; under autodiff Burn decomposes it anyway.
+pub fn fused_attention(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
+    attention(
+        q,
+        k,
+        v,
+        None,
+        None,
+        AttentionModuleOptions {
+            scale: None,
+            softcap: None,
+            is_causal: false,
+        },
+    )
+}
+
+/// Linear attention (SANA; paper Sec. 3.4) on `[B, H, T, d_h]` tensors:
+///
+/// `out_i = phi(q_i) (sum_j phi(k_j)^T v_j) / (phi(q_i) . sum_j phi(k_j) + eps)`
+///
+/// computed right to left, so the cost is `O(T d_h^2)` per head and no `T x T` matrix is ever
+/// formed. The sums are accumulated in f32 whatever the input precision; the result is cast
+/// back to the input's dtype.
+pub fn linear_attention(
+    q: Tensor<4>,
+    k: Tensor<4>,
+    v: Tensor<4>,
+    feature_map: FeatureMap,
+    eps: f64,
+) -> Tensor<4> {
+    let dtype = q.dtype();
+    let to_f32 = |x: Tensor<4>| {
+        if x.dtype() == DType::F32 {
+            x
+        } else {
+            x.cast(FloatDType::F32)
+        }
+    };
+    let phi_q = feature_map.apply(to_f32(q));
+    let phi_k = feature_map.apply(to_f32(k));
+    let v = to_f32(v);
+    // [B, H, d_h, d_h]: sum_j phi(k_j)^T v_j.
+    let kv = phi_k.clone().swap_dims(2, 3).matmul(v);
+    // [B, H, 1, d_h]: sum_j phi(k_j).
+    let k_sum = phi_k.sum_dim(2);
+    let numerator = phi_q.clone().matmul(kv);
+    // [B, H, T, 1]: phi(q_i) . sum_j phi(k_j).
+    let normaliser = (phi_q * k_sum).sum_dim(3);
+    let out = numerator / (normaliser + eps);
+    if dtype == DType::F32 {
+        out
+    } else {
+        out.cast(dtype)
+    }
+}
+
+/// Configuration of a [`SelfAttention`] layer.
+#[derive(Config, Debug)]
+pub struct SelfAttentionConfig {
+    /// Token width `d`.
+    pub width: usize,
+    /// Number of heads; `width` must be a multiple of it.
+    pub heads: usize,
+    /// Standard deviation of the `qkv` projection's normal initialisation.
+    #[config(default = 0.02)]
+    pub init_std: f64,
+    /// Standard deviation of the output projection's initialisation (the depth-scaled one).
+    #[config(default = 0.02)]
+    pub out_init_std: f64,
+    /// The attention kind the layer starts with.
+    #[config(default = "AttentionKind::Full")]
+    pub kind: AttentionKind,
+    /// Feature map of linear attention.
+    #[config(default = "FeatureMap::Relu")]
+    pub feature_map: FeatureMap,
+    /// `eps` in the normaliser of linear attention.
+    #[config(default = 1e-6)]
+    pub linear_eps: f64,
+    /// `eps` of the per-head RMSNorm on queries and keys.
+    #[config(default = 1e-5)]
+    pub norm_eps: f64,
+}
+
+impl SelfAttentionConfig {
+    /// Builds the layer.
+    ///
+    /// # Panics
+    /// If `width` is not a multiple of `heads` (configs are checked before, see
+    /// [`crate::PrismConfig::validate`]).
+    pub fn init(&self, device: &Device) -> SelfAttention {
+        assert!(
+            self.heads > 0 && self.width.is_multiple_of(self.heads),
+            "width {} is not a multiple of heads {}",
+            self.width,
+            self.heads
+        );
+        let head_dim = self.width / self.heads;
+        let linear = |d_in: usize, d_out: usize, std: f64| {
+            LinearConfig::new(d_in, d_out)
+                .with_bias(false)
+                .with_initializer(Initializer::Normal { mean: 0.0, std })
+                .init(device)
+        };
+        SelfAttention {
+            qkv: linear(self.width, 3 * self.width, self.init_std),
+            q_norm: RmsNormConfig::new(head_dim)
+                .with_epsilon(self.norm_eps)
+                .init(device),
+            k_norm: RmsNormConfig::new(head_dim)
+                .with_epsilon(self.norm_eps)
+                .init(device),
+            out: linear(self.width, self.width, self.out_init_std),
+            heads: self.heads,
+            linear_eps: self.linear_eps,
+            kind: self.kind,
+            feature_map: self.feature_map,
+        }
+    }
+}
+
+/// Multi-head self-attention without biases, with QK-norm (RMSNorm per head on queries and
+/// keys, one gain vector shared by the heads). The attention kind is not a parameter: changing
+/// it with [`SelfAttention::set_kind`] leaves every weight untouched.
+#[derive(Module, Debug)]
+pub struct SelfAttention {
+    /// Joint projection to queries, keys and values, `[d, 3d]`.
+    pub qkv: Linear,
+    /// RMSNorm on each head's queries.
+    pub q_norm: RmsNorm,
+    /// RMSNorm on each head's keys.
+    pub k_norm: RmsNorm,
+    /// Output projection `[d, d]`.
+    pub out: Linear,
+    heads: usize,
+    linear_eps: f64,
+    #[module(skip)]
+    kind: AttentionKind,
+    #[module(skip)]
+    feature_map: FeatureMap,
+}
+
+impl SelfAttention {
+    /// The attention kind this layer computes.
+    pub fn kind(&self) -> AttentionKind {
+        self.kind
+    }
+
+    /// Switches the attention kind in place; the weights are not touched.
+    pub fn set_kind(&mut self, kind: AttentionKind) {
+        self.kind = kind;
+    }
+
+    /// The feature map used when the kind is [`AttentionKind::Linear`].
+    pub fn feature_map(&self) -> FeatureMap {
+        self.feature_map
+    }
+
+    /// Number of heads.
+    pub fn heads(&self) -> usize {
+        self.heads
+    }
+
+    /// The normalised per-head queries, keys and values of `x` (`[B, T, d]`), each
+    /// `[B, H, T, d_h]`: `q = RMSNorm(x W_q)`, `k = RMSNorm(x W_k)`, `v = x W_v`.
+    pub fn project(&self, x: Tensor<3>) -> (Tensor<4>, Tensor<4>, Tensor<4>) {
+        let [batch, tokens, width] = x.dims();
+        let head_dim = width / self.heads;
+        // [B, T, 3, H, d_h] -> [3, B, H, T, d_h]
+        let qkv = self
+            .qkv
+            .forward(x)
+            .reshape([batch, tokens, 3, self.heads, head_dim])
+            .permute([2, 0, 3, 1, 4]);
+        let mut parts = qkv
+            .chunk(3, 0)
+            .into_iter()
+            .map(|t| t.reshape([batch, self.heads, tokens, head_dim]));
+        let (q, k, v) = (
+            parts.next().expect("q"),
+            parts.next().expect("k"),
+            parts.next().expect("v"),
+        );
+        (self.q_norm.forward(q), self.k_norm.forward(k), v)
+    }
+
+    /// Self-attention of `x` (`[B, T, d]`) with this layer's kind. Full attention uses Burn's
+    /// fused op when `x` is not tracked by autodiff (inference) and the explicit softmax when a
+    /// gradient is needed.
+    pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
+        let [batch, tokens, width] = x.dims();
+        let (q, k, v) = self.project(x);
+        let needs_grad = q.is_tracked() || k.is_tracked() || v.is_tracked();
+        let heads_out = match self.kind {
+            AttentionKind::Full if needs_grad => softmax_attention(q, k, v),
+            AttentionKind::Full => fused_attention(q, k, v),
+            AttentionKind::Linear => linear_attention(q, k, v, self.feature_map, self.linear_eps),
+        };
+        let merged = heads_out.swap_dims(1, 2).reshape([batch, tokens, width]);
+        self.out.forward(merged)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::test_util::{max_abs_diff, ndarray, values};
+    use burn::tensor::{Distribution, TensorData};
+
+    const SHAPE: [usize; 4] = [2, 3, 7, 4];
+
+    fn random(seed: u64, device: &Device) -> Tensor<4> {
+        device.seed(seed);
+        Tensor::random(SHAPE, Distribution::Normal(0.0, 1.0), device)
+    }
+
+    /// Per (batch, head): row-major `[T, d_h]` slices.
+    fn rows<'a>(x: &'a [f32], bh: usize) -> impl Fn(usize) -> &'a [f32] + 'a {
+        let [_, _, t, dh] = SHAPE;
+        move |i| &x[(bh * t + i) * dh..(bh * t + i + 1) * dh]
+    }
+
+    fn dot(a: &[f32], b: &[f32]) -> f64 {
+        a.iter().zip(b).map(|(x, y)| *x as f64 * *y as f64).sum()
+    }
+
+    /// The explicit quadratic form `phi(Q) phi(K)^T V / (phi(Q) phi(K)^T 1 + eps)`, on the host.
+    fn linear_reference(
+        q: &[f32],
+        k: &[f32],
+        v: &[f32],
+        phi: fn(f32) -> f32,
+        eps: f64,
+    ) -> Vec<f32> {
+        let [b, h, t, dh] = SHAPE;
+        let (pq, pk): (Vec<f32>, Vec<f32>) = (
+            q.iter().map(|&x| phi(x)).collect(),
+            k.iter().map(|&x| phi(x)).collect(),
+        );
+        let mut out = vec![0.0; q.len()];
+        for bh in 0..b * h {
+            let (qr, kr, vr) = (rows(&pq, bh), rows(&pk, bh), rows(v, bh));
+            for i in 0..t {
+                let weights: Vec<f64> = (0..t).map(|j| dot(qr(i), kr(j))).collect();
+                let norm: f64 = weights.iter().sum::<f64>() + eps;
+                for c in 0..dh {
+                    let num: f64 = (0..t).map(|j| weights[j] * vr(j)[c] as f64).sum();
+                    out[(bh * t + i) * dh + c] = (num / norm) as f32;
+                }
+            }
+        }
+        out
+    }
+
+    /// `softmax(Q K^T / sqrt(d_h)) V` with the `T x T` matrix written out, on the host.
+    fn softmax_reference(q: &[f32], k: &[f32], v: &[f32]) -> Vec<f32> {
+        let [b, h, t, dh] = SHAPE;
+        let mut out = vec![0.0; q.len()];
+        for bh in 0..b * h {
+            let (qr, kr, vr) = (rows(q, bh), rows(k, bh), rows(v, bh));
+            for i in 0..t {
+                let scores: Vec<f64> = (0..t)
+                    .map(|j| dot(qr(i), kr(j)) / (dh as f64).sqrt())
+                    .collect();
+                let top = scores.iter().cloned().fold(f64::MIN, f64::max);
+                let exp: Vec<f64> = scores.iter().map(|s| (s - top).exp()).collect();
+                let sum: f64 = exp.iter().sum();
+                for c in 0..dh {
+                    let acc: f64 = (0..t).map(|j| exp[j] / sum * vr(j)[c] as f64).sum();
+                    out[(bh * t + i) * dh + c] = acc as f32;
+                }
+            }
+        }
+        out
+    }
+
+    fn inputs(device: &Device) -> (Tensor<4>, Tensor<4>, Tensor<4>) {
+        (random(1, device), random(2, device), random(3, device))
+    }
+
+    #[test]
+    fn linear_attention_equals_the_explicit_quadratic_form() {
+        let device = ndarray();
+        let (q, k, v) = inputs(&device);
+        let (qv, kv, vv) = (values(&q), values(&k), values(&v));
+        let relu: fn(f32) -> f32 = |x| x.max(0.0);
+        let elu1: fn(f32) -> f32 = |x| if x > 0.0 { x + 1.0 } else { x.exp() };
+        for (map, phi) in [(FeatureMap::Relu, relu), (FeatureMap::Elu1, elu1)] {
+            let got = linear_attention(q.clone(), k.clone(), v.clone(), map, 1e-6);
+            assert_eq!(got.dims(), SHAPE);
+            let want = linear_reference(&qv, &kv, &vv, phi, 1e-6);
+            let err = max_abs_diff(&values(&got), &want);
+            assert!(err < 1e-5, "{map:?}: max error {err}");
+        }
+    }
+
+    #[test]
+    fn full_attention_equals_explicit_softmax_attention_on_both_paths() {
+        let device = ndarray();
+        let (q, k, v) = inputs(&device);
+        let want = softmax_reference(&values(&q), &values(&k), &values(&v));
+        let fused = fused_attention(q.clone(), k.clone(), v.clone());
+        let decomposed = softmax_attention(q.clone(), k.clone(), v.clone());
+        // The autodiff path: tracked inputs on an autodiff device.
+        let ad = device.clone().autodiff();
+        let track = |x: &Tensor<4>| Tensor::<4>::from_data(x.to_data(), &ad).require_grad();
+        let tracked = softmax_attention(track(&q), track(&k), track(&v));
+        assert!(tracked.is_tracked());
+        for (name, got) in [
+            ("fused", fused),
+            ("softmax", decomposed),
+            ("autodiff", tracked),
+        ] {
+            let err = max_abs_diff(&values(&got), &want);
+            assert!(err < 1e-5, "{name}: max error {err}");
+        }
+    }
+
+    #[test]
+    fn elu1_feature_map_values() {
+        let device = ndarray();
+        let x = Tensor::<1>::from_data(TensorData::from([-1.0f32, 0.0, 2.0]), &device);
+        let got = values(&FeatureMap::Elu1.apply(x.clone()));
+        let want = [(-1.0f32).exp(), 1.0, 3.0];
+        assert!(max_abs_diff(&got, &want) < 1e-6, "{got:?}");
+        assert_eq!(values(&FeatureMap::Relu.apply(x)), vec![0.0, 0.0, 2.0]);
+    }
+
+    #[test]
+    fn self_attention_paths_agree_with_and_without_autodiff() {
+        let ad = ndarray().autodiff();
+        for kind in [AttentionKind::Full, AttentionKind::Linear] {
+            ad.seed(7);
+            let layer = SelfAttentionConfig::new(16, 4)
+                .with_init_std(0.3)
+                .with_out_init_std(0.3)
+                .with_kind(kind)
+                .init(&ad);
+            let x = Tensor::<3>::random([2, 9, 16], Distribution::Normal(0.0, 1.0), &ad);
+            let trained = layer.forward(x.clone());
+            assert!(trained.is_tracked(), "{kind:?}: parameters must be tracked");
+            let inference = layer.valid().forward(x.inner());
+            assert!(!inference.is_tracked());
+            let err = max_abs_diff(&values(&trained), &values(&inference));
+            assert!(err < 1e-5, "{kind:?}: max error {err}");
+        }
+    }
+}

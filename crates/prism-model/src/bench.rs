@@ -1,0 +1,89 @@
+//! Forward-time benchmark of the model (what `prism bench model` runs): time per frame of one
+//! (source, target) pair, median over repeated runs after warm-up, inference mode (no
+//! autodiff, so Full attention goes through Burn's fused op).
+
+use std::time::Instant;
+
+use burn::tensor::{Device, Distribution, Tensor};
+use serde::Serialize;
+
+use crate::prism::Prism;
+
+/// One measurement.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct BenchRow {
+    /// Name of the model (config name and attention, e.g. `tiny/full`).
+    pub model: String,
+    /// Image size in pixels (square).
+    pub res: usize,
+    /// Tokens per sequence.
+    pub tokens: usize,
+    /// Median forward time of one frame, milliseconds.
+    pub ms: f64,
+    /// `1000 / ms`.
+    pub fps: f64,
+    /// Bytes the device's allocator had reserved after the timed runs (an upper bound of the
+    /// peak in use, as pools keep freed pages); `None` where the backend does not report it
+    /// (the CPU backends ndarray and flex).
+    pub peak_mem_bytes: Option<u64>,
+}
+
+/// How to time.
+#[derive(Clone, Copy, Debug)]
+pub struct BenchOptions {
+    /// Untimed runs first.
+    pub warmup: usize,
+    /// Timed runs; the median is reported.
+    pub iters: usize,
+}
+
+/// Times the forward pass of `model` on random inputs of `res x res` pixels with batch 1.
+/// The time includes waiting for the device to finish (`Device::sync`).
+pub fn bench_forward(
+    model: &Prism,
+    name: &str,
+    res: usize,
+    device: &Device,
+    options: BenchOptions,
+) -> BenchRow {
+    let image = Tensor::<4>::random([1, 3, res, res], Distribution::Uniform(0.0, 1.0), device);
+    let source_rays = Tensor::<4>::random([1, 6, res, res], Distribution::Default, device);
+    let target_rays = Tensor::<4>::random([1, 6, res, res], Distribution::Default, device);
+    let run = || {
+        let out = model.forward(image.clone(), source_rays.clone(), target_rays.clone(), &[]);
+        // Waits for the result: reading it back forces lazy backends to execute.
+        let _ = out.image.into_data();
+        let _ = device.sync();
+    };
+    for _ in 0..options.warmup {
+        run();
+    }
+    let mut times: Vec<f64> = (0..options.iters.max(1))
+        .map(|_| {
+            let start = Instant::now();
+            run();
+            start.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    times.sort_by(|a, b| a.total_cmp(b));
+    let ms = median(&times);
+    let patch = model.tokenizer.patch_size();
+    BenchRow {
+        model: name.to_string(),
+        res,
+        tokens: 2 * (res / patch) * (res / patch),
+        ms,
+        fps: 1e3 / ms,
+        peak_mem_bytes: device.memory_pool_usage().map(|u| u.bytes_reserved),
+    }
+}
+
+/// The median of sorted values.
+fn median(sorted: &[f64]) -> f64 {
+    let n = sorted.len();
+    if n % 2 == 1 {
+        sorted[n / 2]
+    } else {
+        0.5 * (sorted[n / 2 - 1] + sorted[n / 2])
+    }
+}

@@ -1,0 +1,132 @@
+//! The transformer block of the cascade: pre-norm attention and MLP, no biases.
+
+use burn::config::Config;
+use burn::module::Module;
+use burn::nn::{Initializer, LayerNorm, LayerNormConfig, Linear, LinearConfig};
+use burn::tensor::activation::gelu;
+use burn::tensor::{Device, Tensor};
+
+use crate::attention::{AttentionKind, FeatureMap, SelfAttention, SelfAttentionConfig};
+
+/// Configuration of a [`PrismBlock`].
+#[derive(Config, Debug)]
+pub struct PrismBlockConfig {
+    /// Token width `d`.
+    pub width: usize,
+    /// Number of attention heads.
+    pub heads: usize,
+    /// Hidden width of the MLP as a multiple of `width`.
+    #[config(default = 4)]
+    pub mlp_ratio: usize,
+    /// Standard deviation of the normal initialisation of the input projections.
+    #[config(default = 0.02)]
+    pub init_std: f64,
+    /// Number of blocks of the whole network; output projections are initialised with
+    /// `init_std / sqrt(2 * num_blocks)` so that the residual stream's variance does not grow
+    /// with depth.
+    #[config(default = 1)]
+    pub num_blocks: usize,
+    /// The attention kind the block starts with.
+    #[config(default = "AttentionKind::Full")]
+    pub attention: AttentionKind,
+    /// Feature map of linear attention.
+    #[config(default = "FeatureMap::Relu")]
+    pub feature_map: FeatureMap,
+    /// `eps` in the normaliser of linear attention.
+    #[config(default = 1e-6)]
+    pub linear_eps: f64,
+    /// `eps` of the LayerNorms and of the QK RMSNorms.
+    #[config(default = 1e-5)]
+    pub norm_eps: f64,
+}
+
+impl PrismBlockConfig {
+    /// The standard deviation of the output projections: `init_std / sqrt(2 * num_blocks)`.
+    pub fn out_init_std(&self) -> f64 {
+        self.init_std / (2.0 * self.num_blocks.max(1) as f64).sqrt()
+    }
+
+    /// Builds the block.
+    pub fn init(&self, device: &Device) -> PrismBlock {
+        let norm = || {
+            LayerNormConfig::new(self.width)
+                .with_bias(false)
+                .with_epsilon(self.norm_eps)
+                .init(device)
+        };
+        let attention = SelfAttentionConfig::new(self.width, self.heads)
+            .with_init_std(self.init_std)
+            .with_out_init_std(self.out_init_std())
+            .with_kind(self.attention)
+            .with_feature_map(self.feature_map)
+            .with_linear_eps(self.linear_eps)
+            .with_norm_eps(self.norm_eps)
+            .init(device);
+        let hidden = self.width * self.mlp_ratio;
+        let linear = |d_in: usize, d_out: usize, std: f64| {
+            LinearConfig::new(d_in, d_out)
+                .with_bias(false)
+                .with_initializer(Initializer::Normal { mean: 0.0, std })
+                .init(device)
+        };
+        PrismBlock {
+            attention_norm: norm(),
+            attention,
+            mlp_norm: norm(),
+            mlp: Mlp {
+                fc_in: linear(self.width, hidden, self.init_std),
+                fc_out: linear(hidden, self.width, self.out_init_std()),
+            },
+        }
+    }
+}
+
+/// The block's feed-forward part: `Linear(d, r d) -> GELU -> Linear(r d, d)`, no biases.
+#[derive(Module, Debug)]
+pub struct Mlp {
+    /// Expansion `[d, r d]`.
+    pub fc_in: Linear,
+    /// Output projection `[r d, d]` (depth-scaled initialisation).
+    pub fc_out: Linear,
+}
+
+impl Mlp {
+    /// `fc_out(GELU(fc_in(x)))`.
+    pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
+        self.fc_out.forward(gelu(self.fc_in.forward(x)))
+    }
+}
+
+/// One transformer block of the cascade (pre-norm, no positional embedding: the Plücker rays
+/// in the tokens are the position signal):
+///
+/// `x = x + Attn(LN(x))`, then `x = x + MLP(LN(x))`.
+#[derive(Module, Debug)]
+pub struct PrismBlock {
+    /// LayerNorm (no bias) before attention.
+    pub attention_norm: LayerNorm,
+    /// Multi-head self-attention, full or linear.
+    pub attention: SelfAttention,
+    /// LayerNorm (no bias) before the MLP.
+    pub mlp_norm: LayerNorm,
+    /// The 4x GELU MLP.
+    pub mlp: Mlp,
+}
+
+impl PrismBlock {
+    /// The block on `x` (`[B, T, d]`).
+    pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
+        let x = x.clone() + self.attention.forward(self.attention_norm.forward(x));
+        x.clone() + self.mlp.forward(self.mlp_norm.forward(x))
+    }
+
+    /// The block's attention kind.
+    pub fn attention_kind(&self) -> AttentionKind {
+        self.attention.kind()
+    }
+
+    /// Switches the block's attention kind in place, keeping every weight.
+    pub fn set_attention(&mut self, kind: AttentionKind) {
+        self.attention.set_kind(kind);
+    }
+}

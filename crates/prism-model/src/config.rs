@@ -1,0 +1,456 @@
+//! The model's configuration: the `[model]` section of a TOML config file, and the loader of
+//! the `[model]` and `[distill]` sections.
+//!
+//! Every field of `[model]` and `[distill]` is written in the file (the file fully describes
+//! the model; a missing field is an error naming it). Other sections (`[losses]`, `[train]`,
+//! `[data]`, ...) are ignored here: they belong to other crates.
+
+use std::fmt;
+use std::path::Path;
+
+use burn::config::Config;
+use serde::de::{self, Deserializer, SeqAccess, Visitor};
+use serde::{Deserialize, Serialize, Serializer};
+
+use crate::attention::{AttentionKind, FeatureMap};
+use crate::distill::DistillConfig;
+use crate::error::ModelError;
+
+/// The attention kind of every transformer block, as written in a config file.
+///
+/// In TOML either a string, `"full"` (every block Full), `"linear"` (every block Linear) or one
+/// letter per block, `F` or `L` (spaces and `_` `|` are ignored, e.g. `"LLLLLF LLLLLF"`), or a
+/// list with one `"full"` / `"linear"` per block.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum AttentionPattern {
+    /// The same kind for every block.
+    All(AttentionKind),
+    /// One kind per block, in global block order (stage I then stage III).
+    PerBlock(Vec<AttentionKind>),
+}
+
+impl AttentionPattern {
+    /// The kinds of `num_blocks` blocks.
+    ///
+    /// # Errors
+    /// When a per-block pattern does not have exactly `num_blocks` entries.
+    pub fn resolve(&self, num_blocks: usize) -> Result<Vec<AttentionKind>, ModelError> {
+        match self {
+            Self::All(kind) => Ok(vec![*kind; num_blocks]),
+            Self::PerBlock(kinds) if kinds.len() == num_blocks => Ok(kinds.clone()),
+            Self::PerBlock(kinds) => Err(ModelError::invalid(
+                "model.attention",
+                format!(
+                    "{} entries for {num_blocks} blocks (stage_one_blocks + stage_three_blocks)",
+                    kinds.len()
+                ),
+            )),
+        }
+    }
+
+    /// The compact text form: `full`, `linear` or one `F`/`L` letter per block.
+    pub fn to_compact(&self) -> String {
+        match self {
+            Self::All(kind) => kind.name().to_string(),
+            Self::PerBlock(kinds) => kinds.iter().map(|k| k.letter()).collect(),
+        }
+    }
+
+    /// Parses the compact text form (see the type's documentation).
+    ///
+    /// # Errors
+    /// On a character other than `F`, `L`, spaces, `_` and `|`, or an empty pattern.
+    pub fn parse_compact(text: &str) -> Result<Self, String> {
+        match text.trim().to_ascii_lowercase().as_str() {
+            "full" => return Ok(Self::All(AttentionKind::Full)),
+            "linear" => return Ok(Self::All(AttentionKind::Linear)),
+            _ => {}
+        }
+        let mut kinds = Vec::new();
+        for c in text.chars() {
+            match c {
+                'F' | 'f' => kinds.push(AttentionKind::Full),
+                'L' | 'l' => kinds.push(AttentionKind::Linear),
+                ' ' | '_' | '|' => {}
+                other => {
+                    return Err(format!(
+                        "unexpected `{other}` in attention pattern `{text}` (expected \"full\", \
+                         \"linear\" or one F/L letter per block)"
+                    ));
+                }
+            }
+        }
+        if kinds.is_empty() {
+            return Err("empty attention pattern".to_string());
+        }
+        Ok(Self::PerBlock(kinds))
+    }
+}
+
+impl Serialize for AttentionPattern {
+    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.serialize_str(&self.to_compact())
+    }
+}
+
+impl<'de> Deserialize<'de> for AttentionPattern {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        struct PatternVisitor;
+        impl<'de> Visitor<'de> for PatternVisitor {
+            type Value = AttentionPattern;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str(
+                    "\"full\", \"linear\", a pattern of F/L letters, or a list of \"full\" / \
+                     \"linear\"",
+                )
+            }
+            fn visit_str<E: de::Error>(self, v: &str) -> Result<Self::Value, E> {
+                AttentionPattern::parse_compact(v).map_err(E::custom)
+            }
+            fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Self::Value, A::Error> {
+                let mut kinds = Vec::new();
+                while let Some(kind) = seq.next_element::<AttentionKind>()? {
+                    kinds.push(kind);
+                }
+                Ok(AttentionPattern::PerBlock(kinds))
+            }
+        }
+        deserializer.deserialize_any(PatternVisitor)
+    }
+}
+
+/// The model: the `[model]` section of a config file (paper Sec. 3.2). See
+/// `configs/paper.toml` for the paper's values.
+#[derive(Config, Debug)]
+pub struct PrismConfig {
+    /// Token width `d` (paper: 768).
+    pub width: usize,
+    /// Attention heads; `width` must be a multiple (paper: 12, head dim 64).
+    pub heads: usize,
+    /// Patch size `p` in pixels (paper: 8).
+    pub patch_size: usize,
+    /// `M`, the blocks of stage I before the injection point (paper: 12).
+    pub stage_one_blocks: usize,
+    /// `N`, the blocks of stage III after the injection point (paper: 24).
+    pub stage_three_blocks: usize,
+    /// Training and evaluation image size in pixels (square; paper: 512). The network itself
+    /// has no positional embedding and runs at any multiple of `patch_size`.
+    pub resolution: usize,
+    /// MLP hidden width as a multiple of `width`.
+    #[config(default = 4)]
+    pub mlp_ratio: usize,
+    /// Attention kind of every block (`"full"`, `"linear"`, an F/L pattern or a list).
+    #[config(default = "AttentionPattern::All(AttentionKind::Full)")]
+    pub attention: AttentionPattern,
+    /// Feature map `phi` of linear attention: `relu` (SANA, default) or `elu1` (ELU + 1).
+    #[config(default = "FeatureMap::Relu")]
+    pub linear_feature_map: FeatureMap,
+    /// `eps` added to linear attention's normaliser `phi(q) . sum phi(k)`.
+    #[config(default = 1e-6)]
+    pub linear_eps: f64,
+    /// Standard deviation of the normal initialisation of every projection (output
+    /// projections of the blocks are further divided by `sqrt(2 (M + N))`).
+    #[config(default = 0.02)]
+    pub init_std: f64,
+    /// `eps` of every LayerNorm and QK RMSNorm.
+    #[config(default = 1e-5)]
+    pub norm_eps: f64,
+}
+
+impl PrismConfig {
+    /// `M + N`, the transformer blocks of the whole cascade.
+    pub fn num_blocks(&self) -> usize {
+        self.stage_one_blocks + self.stage_three_blocks
+    }
+
+    /// Head dimension `d / heads`.
+    pub fn head_dim(&self) -> usize {
+        self.width / self.heads.max(1)
+    }
+
+    /// Tokens of one (source, target) sequence at `height x width` pixels: `2 (H/p)(W/p)`.
+    pub fn tokens_per_sequence(&self, height: usize, width: usize) -> usize {
+        2 * (height / self.patch_size) * (width / self.patch_size)
+    }
+
+    /// The attention kind of each block, in global order.
+    ///
+    /// # Errors
+    /// When the `attention` pattern's length is not `M + N`.
+    pub fn attention_kinds(&self) -> Result<Vec<AttentionKind>, ModelError> {
+        self.attention.resolve(self.num_blocks())
+    }
+
+    /// Checks that a model can be built from this config.
+    ///
+    /// # Errors
+    /// [`ModelError::Invalid`] naming the first offending field.
+    pub fn validate(&self) -> Result<(), ModelError> {
+        let fail = |field: &str, message: String| Err(ModelError::invalid(field, message));
+        if self.width == 0 {
+            return fail("model.width", "must be positive".into());
+        }
+        if self.heads == 0 || !self.width.is_multiple_of(self.heads) {
+            return fail(
+                "model.heads",
+                format!("{} does not divide width {}", self.heads, self.width),
+            );
+        }
+        if self.patch_size == 0 {
+            return fail("model.patch_size", "must be positive".into());
+        }
+        if self.resolution == 0 || !self.resolution.is_multiple_of(self.patch_size) {
+            return fail(
+                "model.resolution",
+                format!(
+                    "{} is not a positive multiple of patch_size {}",
+                    self.resolution, self.patch_size
+                ),
+            );
+        }
+        if self.stage_one_blocks == 0 {
+            return fail("model.stage_one_blocks", "must be at least 1".into());
+        }
+        if self.stage_three_blocks == 0 {
+            return fail("model.stage_three_blocks", "must be at least 1".into());
+        }
+        if self.mlp_ratio == 0 {
+            return fail("model.mlp_ratio", "must be at least 1".into());
+        }
+        for (field, value) in [
+            ("model.linear_eps", self.linear_eps),
+            ("model.init_std", self.init_std),
+            ("model.norm_eps", self.norm_eps),
+        ] {
+            if !(value.is_finite() && value > 0.0) {
+                return fail(field, format!("{value} is not a positive number"));
+            }
+        }
+        self.attention_kinds().map(|_| ())
+    }
+}
+
+/// The sections of a config file that this crate reads: `[model]` and `[distill]`. Other
+/// sections are ignored.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ModelConfigFile {
+    /// The `[model]` section.
+    pub model: PrismConfig,
+    /// The `[distill]` section.
+    pub distill: DistillConfig,
+}
+
+impl ModelConfigFile {
+    /// Checks both sections (see [`PrismConfig::validate`] and [`DistillConfig::validate`]).
+    ///
+    /// # Errors
+    /// [`ModelError::Invalid`] naming the first offending field.
+    pub fn validate(&self) -> Result<(), ModelError> {
+        self.model.validate()?;
+        self.distill.validate(self.model.num_blocks())
+    }
+}
+
+/// Parses the `[model]` and `[distill]` sections of a TOML text and checks them. `origin`
+/// (usually the file's path) names the text in errors.
+///
+/// # Errors
+/// [`ModelError::Parse`] with the line and the field for bad TOML, a missing or mistyped
+/// field; [`ModelError::InvalidInFile`] for a value the model cannot be built with.
+pub fn parse_config(text: &str, origin: &Path) -> Result<ModelConfigFile, ModelError> {
+    let file: ModelConfigFile = toml::from_str(text).map_err(|err| ModelError::Parse {
+        path: origin.to_path_buf(),
+        message: describe_toml_error(text, &err),
+    })?;
+    file.validate().map_err(|err| err.in_file(origin))?;
+    Ok(file)
+}
+
+/// Reads a config file and returns its `[model]` and `[distill]` sections, checked.
+///
+/// # Errors
+/// [`ModelError::Read`] when the file cannot be read, otherwise as [`parse_config`].
+pub fn load_config(path: impl AsRef<Path>) -> Result<ModelConfigFile, ModelError> {
+    let path = path.as_ref();
+    let text = std::fs::read_to_string(path).map_err(|cause| ModelError::Read {
+        path: path.to_path_buf(),
+        cause,
+    })?;
+    parse_config(&text, path)
+}
+
+/// One line for a TOML error: `line L: message (in [section])`.
+fn describe_toml_error(text: &str, err: &toml::de::Error) -> String {
+    let message = err.message().trim().to_string();
+    let Some(span) = err.span() else {
+        return message;
+    };
+    let before = &text[..span.start.min(text.len())];
+    let line = before.matches('\n').count() + 1;
+    // The innermost `[section]` header at or before the error.
+    let section = before
+        .lines()
+        .chain(text[span.start.min(text.len())..].lines().take(1))
+        .filter_map(|l| {
+            let l = l.trim();
+            (l.starts_with('[') && l.ends_with(']')).then(|| l.to_string())
+        })
+        .last();
+    match section {
+        Some(section) if !message.contains(&section) => {
+            format!("line {line}: {message} (in {section})")
+        }
+        _ => format!("line {line}: {message}"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::distill::DistillLayers;
+    use std::path::PathBuf;
+
+    fn configs_dir() -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs")
+    }
+
+    const TINY_MODEL: &str = r#"
+[model]
+width = 64
+heads = 4
+patch_size = 8
+stage_one_blocks = 2
+stage_three_blocks = 4
+resolution = 64
+mlp_ratio = 4
+attention = "full"
+linear_feature_map = "relu"
+linear_eps = 1e-6
+init_std = 0.02
+norm_eps = 1e-5
+
+[distill]
+group_size = 3
+start = 1
+interval = 1
+layers = 2
+"#;
+
+    fn parse(text: &str) -> Result<ModelConfigFile, ModelError> {
+        parse_config(text, Path::new("test.toml"))
+    }
+
+    #[test]
+    fn shipped_configs_load() {
+        for (name, width, blocks, resolution) in [
+            ("tiny", 64, 6, 64),
+            ("small", 128, 12, 128),
+            ("paper", 768, 36, 512),
+        ] {
+            let file = load_config(configs_dir().join(format!("{name}.toml"))).unwrap();
+            assert_eq!(file.model.width, width, "{name}");
+            assert_eq!(file.model.num_blocks(), blocks, "{name}");
+            assert_eq!(file.model.resolution, resolution, "{name}");
+            assert_eq!(
+                file.model.attention_kinds().unwrap(),
+                vec![AttentionKind::Full; blocks]
+            );
+        }
+        let paper = load_config(configs_dir().join("paper.toml")).unwrap();
+        assert_eq!(
+            (paper.model.heads, paper.model.patch_size),
+            (12, 8),
+            "paper: 12 heads, patch 8"
+        );
+        assert_eq!(
+            (paper.model.stage_one_blocks, paper.model.stage_three_blocks),
+            (12, 24)
+        );
+        assert_eq!(
+            (
+                paper.distill.group_size,
+                paper.distill.start,
+                paper.distill.interval
+            ),
+            (6, 5000, 5000)
+        );
+    }
+
+    #[test]
+    fn unknown_sections_are_ignored() {
+        let text = format!(
+            "[losses]\nnvs = 1.0\n\n[train]\nsteps = 10\nlr = 1e-4\n{TINY_MODEL}\n[data]\nroot = \"x\"\n"
+        );
+        let file = parse(&text).unwrap();
+        assert_eq!(file.model.heads, 4);
+        assert_eq!(file.distill.layers, DistillLayers::Count(2));
+    }
+
+    #[test]
+    fn attention_patterns_in_every_form() {
+        let with = |value: &str| TINY_MODEL.replace("attention = \"full\"", value);
+        let kinds = |value: &str| {
+            parse(&with(value))
+                .unwrap()
+                .model
+                .attention_kinds()
+                .unwrap()
+        };
+        use AttentionKind::{Full as F, Linear as L};
+        assert_eq!(kinds("attention = \"linear\""), vec![L; 6]);
+        assert_eq!(kinds("attention = \"LLF LLF\""), vec![L, L, F, L, L, F]);
+        assert_eq!(
+            kinds("attention = [\"full\", \"linear\", \"full\", \"linear\", \"full\", \"linear\"]"),
+            vec![F, L, F, L, F, L]
+        );
+        let err = parse(&with("attention = \"LLF\"")).unwrap_err().to_string();
+        assert!(
+            err.contains("test.toml") && err.contains("model.attention"),
+            "{err}"
+        );
+        let err = parse(&with("attention = \"LXF\"")).unwrap_err().to_string();
+        assert!(err.contains("test.toml") && err.contains("`X`"), "{err}");
+        // The compact form round-trips through serde (checkpoints store configs as JSON).
+        let model = parse(&with("attention = \"LFLFLF\"")).unwrap().model;
+        let json = serde_json::to_string(&model).unwrap();
+        assert!(json.contains("\"LFLFLF\""), "{json}");
+        let back: PrismConfig = serde_json::from_str(&json).unwrap();
+        assert_eq!(back.attention, model.attention);
+    }
+
+    #[test]
+    fn errors_name_the_file_and_the_field() {
+        let missing = TINY_MODEL.replace("heads = 4\n", "");
+        let err = parse(&missing).unwrap_err().to_string();
+        assert!(err.starts_with("test.toml"), "{err}");
+        assert!(err.contains("heads") && err.contains("[model]"), "{err}");
+
+        let mistyped = TINY_MODEL.replace("heads = 4", "heads = \"four\"");
+        let err = parse(&mistyped).unwrap_err().to_string();
+        assert!(err.contains("test.toml") && err.contains("line 4"), "{err}");
+
+        let indivisible = TINY_MODEL.replace("heads = 4", "heads = 5");
+        let err = parse(&indivisible).unwrap_err().to_string();
+        assert!(
+            err.contains("test.toml") && err.contains("model.heads"),
+            "{err}"
+        );
+
+        let bad_res = TINY_MODEL.replace("resolution = 64", "resolution = 60");
+        let err = parse(&bad_res).unwrap_err().to_string();
+        assert!(err.contains("model.resolution"), "{err}");
+
+        let bad_group = TINY_MODEL.replace("group_size = 3", "group_size = 0");
+        let err = parse(&bad_group).unwrap_err().to_string();
+        assert!(err.contains("distill.group_size"), "{err}");
+
+        let no_distill = TINY_MODEL.split("[distill]").next().unwrap().to_string();
+        let err = parse(&no_distill).unwrap_err().to_string();
+        assert!(err.contains("distill"), "{err}");
+
+        let err = load_config("/nonexistent/prism.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("/nonexistent/prism.toml"), "{err}");
+    }
+}

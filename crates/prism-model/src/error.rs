@@ -1,0 +1,64 @@
+//! The error type of prism-model.
+
+use std::path::PathBuf;
+
+/// What can go wrong when loading or checking a model configuration.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    /// The config file could not be read.
+    #[error("cannot read config file {path}: {cause}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        cause: std::io::Error,
+    },
+    /// The config file is not valid TOML or does not match the expected sections.
+    #[error("{path}: {message}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// The parser's message, with the line and the field.
+        message: String,
+    },
+    /// A field has a value the model cannot be built with.
+    #[error("invalid config value `{field}`: {message}")]
+    Invalid {
+        /// The field, as `section.field` (e.g. `model.heads`).
+        field: String,
+        /// What is wrong with it.
+        message: String,
+    },
+    /// [`ModelError::Invalid`] found in a file.
+    #[error("{path}: invalid value of `{field}`: {message}")]
+    InvalidInFile {
+        /// The file.
+        path: PathBuf,
+        /// The field, as `section.field`.
+        field: String,
+        /// What is wrong with it.
+        message: String,
+    },
+}
+
+impl ModelError {
+    /// A [`ModelError::Invalid`] for `field`.
+    pub fn invalid(field: impl Into<String>, message: impl Into<String>) -> Self {
+        Self::Invalid {
+            field: field.into(),
+            message: message.into(),
+        }
+    }
+
+    /// Attaches the file an [`ModelError::Invalid`] came from (other variants pass through).
+    pub fn in_file(self, path: impl Into<PathBuf>) -> Self {
+        match self {
+            Self::Invalid { field, message } => Self::InvalidInFile {
+                path: path.into(),
+                field,
+                message,
+            },
+            other => other,
+        }
+    }
+}

@@ -1,0 +1,258 @@
+//! Size and cost of a model, computed from its config without building it (so `prism info`
+//! answers at once even at paper scale).
+//!
+//! FLOPs count the matrix products only, 2 FLOPs per multiply-add; element-wise work (norms,
+//! GELU, softmax, feature maps, residual adds) is left out. With `T` tokens per sequence, width
+//! `d`, head dim `d_h` and MLP ratio `r`, per block:
+//!
+//! - projections and MLP: `2 T (3d^2 + d^2 + 2 r d^2)` (`24 T d^2` for `r = 4`);
+//! - Full attention: `Q K^T` and `A V`, `2 T^2 d` each: `4 T^2 d`, quadratic in `T`;
+//! - Linear attention: `phi(K)^T V` and `phi(Q) (phi(K)^T V)`, `2 T d d_h` each, plus the
+//!   normaliser (`sum_j phi(k_j)` and `phi(q_i) . k_sum`, counted as `2 T d` each):
+//!   `4 T d (d_h + 1)`, linear in `T`.
+//!
+//! The tokenizer costs `2 (T/2) (9 + 6) p^2 d`, the NVS head `2 (T/2) d 3 p^2`.
+
+use serde::Serialize;
+
+use crate::attention::AttentionKind;
+use crate::config::PrismConfig;
+use crate::tokenizer::{SOURCE_CHANNELS, TARGET_CHANNELS};
+
+/// Parameter counts of a model, total and per part.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub struct ParameterCounts {
+    /// Everything.
+    pub total: usize,
+    /// The tokenizer (two projections and the LayerNorm).
+    pub tokenizer: usize,
+    /// The `M` blocks of stage I.
+    pub stage_one: usize,
+    /// The `N` blocks of stage III.
+    pub stage_three: usize,
+    /// The NVS head.
+    pub nvs_head: usize,
+    /// One transformer block.
+    pub per_block: usize,
+}
+
+impl ParameterCounts {
+    /// The counts of the model `config` builds (equal to Burn's `num_params` of each part).
+    pub fn of(config: &PrismConfig) -> Self {
+        let d = config.width;
+        let p2 = config.patch_size * config.patch_size;
+        let tokenizer = (SOURCE_CHANNELS + TARGET_CHANNELS) * p2 * d + d;
+        let per_block = 2 * d + 4 * d * d + 2 * config.head_dim() + 2 * config.mlp_ratio * d * d;
+        let stage_one = config.stage_one_blocks * per_block;
+        let stage_three = config.stage_three_blocks * per_block;
+        let nvs_head = d + d * 3 * p2;
+        Self {
+            total: tokenizer + stage_one + stage_three + nvs_head,
+            tokenizer,
+            stage_one,
+            stage_three,
+            nvs_head,
+            per_block,
+        }
+    }
+}
+
+/// Forward FLOPs of one frame (one (source, target) pair), by part.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct FlopCounts {
+    /// Everything.
+    pub total: f64,
+    /// The tokenizer's projections.
+    pub tokenizer: f64,
+    /// The blocks' projections and MLPs (independent of the attention kind).
+    pub projections: f64,
+    /// The attention of all blocks (depends on each block's kind).
+    pub attention: f64,
+    /// The NVS head's projection.
+    pub nvs_head: f64,
+}
+
+/// Forward FLOPs of one block's attention with `tokens` tokens (see the module docs).
+pub fn attention_flops(config: &PrismConfig, kind: AttentionKind, tokens: usize) -> f64 {
+    let (t, d, dh) = (tokens as f64, config.width as f64, config.head_dim() as f64);
+    match kind {
+        AttentionKind::Full => 4.0 * t * t * d,
+        AttentionKind::Linear => 4.0 * t * d * (dh + 1.0),
+    }
+}
+
+impl FlopCounts {
+    /// FLOPs of one frame of `height x width` pixels with the given block kinds.
+    pub fn of(config: &PrismConfig, kinds: &[AttentionKind], height: usize, width: usize) -> Self {
+        let tokens = config.tokens_per_sequence(height, width);
+        let per_image = (tokens / 2) as f64;
+        let (d, p2) = (
+            config.width as f64,
+            (config.patch_size * config.patch_size) as f64,
+        );
+        let r = config.mlp_ratio as f64;
+        let tokenizer = 2.0 * per_image * ((SOURCE_CHANNELS + TARGET_CHANNELS) as f64) * p2 * d;
+        let projections =
+            kinds.len() as f64 * 2.0 * tokens as f64 * (4.0 * d * d + 2.0 * r * d * d);
+        let attention = kinds
+            .iter()
+            .map(|&k| attention_flops(config, k, tokens))
+            .sum();
+        let nvs_head = 2.0 * per_image * d * 3.0 * p2;
+        Self {
+            total: tokenizer + projections + attention + nvs_head,
+            tokenizer,
+            projections,
+            attention,
+            nvs_head,
+        }
+    }
+}
+
+/// One block in [`ModelInfo`].
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct BlockInfo {
+    /// Global block index `0..M+N`.
+    pub index: usize,
+    /// `stage_one` or `stage_three`.
+    pub stage: &'static str,
+    /// `full` or `linear`.
+    pub attention: AttentionKind,
+    /// Forward FLOPs of this block's attention per frame.
+    pub attention_flops: f64,
+}
+
+/// What `prism info` reports about a model config.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ModelInfo {
+    /// Parameter count of the whole model.
+    pub parameters: usize,
+    /// Parameter counts per part.
+    pub parameter_counts: ParameterCounts,
+    /// Token width `d`.
+    pub width: usize,
+    /// Attention heads.
+    pub heads: usize,
+    /// Patch size `p`.
+    pub patch_size: usize,
+    /// Image size the counts are for (square).
+    pub resolution: usize,
+    /// Tokens per (source, target) sequence: `2 (H/p)(W/p)`.
+    pub tokens_per_sequence: usize,
+    /// One entry per block, in global order.
+    pub blocks: Vec<BlockInfo>,
+    /// Forward FLOPs of one frame, by part.
+    pub flops_per_frame: FlopCounts,
+    /// The same frame with every block Full (the teacher).
+    pub flops_per_frame_all_full: f64,
+    /// The same frame with every block Linear.
+    pub flops_per_frame_all_linear: f64,
+}
+
+impl ModelInfo {
+    /// The report for `config` with the block kinds `kinds` at `resolution x resolution`.
+    ///
+    /// # Panics
+    /// If `kinds` does not have one entry per block.
+    pub fn new(config: &PrismConfig, kinds: &[AttentionKind], resolution: usize) -> Self {
+        assert_eq!(kinds.len(), config.num_blocks(), "one kind per block");
+        let tokens = config.tokens_per_sequence(resolution, resolution);
+        let counts = ParameterCounts::of(config);
+        let blocks = kinds
+            .iter()
+            .enumerate()
+            .map(|(index, &attention)| BlockInfo {
+                index,
+                stage: if index < config.stage_one_blocks {
+                    "stage_one"
+                } else {
+                    "stage_three"
+                },
+                attention,
+                attention_flops: attention_flops(config, attention, tokens),
+            })
+            .collect();
+        let uniform = |kind| {
+            FlopCounts::of(
+                config,
+                &vec![kind; config.num_blocks()],
+                resolution,
+                resolution,
+            )
+            .total
+        };
+        Self {
+            parameters: counts.total,
+            parameter_counts: counts,
+            width: config.width,
+            heads: config.heads,
+            patch_size: config.patch_size,
+            resolution,
+            tokens_per_sequence: tokens,
+            blocks,
+            flops_per_frame: FlopCounts::of(config, kinds, resolution, resolution),
+            flops_per_frame_all_full: uniform(AttentionKind::Full),
+            flops_per_frame_all_linear: uniform(AttentionKind::Linear),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::load_config;
+    use std::path::Path;
+
+    fn config(name: &str) -> PrismConfig {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../../configs/{name}.toml"));
+        load_config(path).unwrap().model
+    }
+
+    #[test]
+    fn paper_scale_counts() {
+        let paper = config("paper");
+        let counts = ParameterCounts::of(&paper);
+        // Per block: 2 LayerNorm gains (2 x 768) + qkv (768 x 2304) + out (768 x 768)
+        // + QK-norm gains (2 x 64) + MLP (768 x 3072 + 3072 x 768).
+        assert_eq!(
+            counts.per_block,
+            1536 + 1_769_472 + 589_824 + 128 + 4_718_592
+        );
+        // Tokenizer: (9 + 6) x 64 x 768 + LayerNorm 768; head: 768 + 768 x 192.
+        assert_eq!(counts.tokenizer, 737_280 + 768);
+        assert_eq!(counts.nvs_head, 768 + 147_456);
+        assert_eq!(counts.total, 255_750_144);
+
+        let kinds = vec![AttentionKind::Full; 36];
+        let info = ModelInfo::new(&paper, &kinds, 512);
+        assert_eq!(info.tokens_per_sequence, 8192);
+        assert_eq!(info.blocks.len(), 36);
+        // Full attention per block: Q K^T and A V, 8192^2 x 768 multiply-adds each.
+        let t = 8192.0f64;
+        assert_eq!(info.blocks[0].attention_flops, 4.0 * t * t * 768.0);
+        let json = serde_json::to_value(&info).unwrap();
+        assert_eq!(json["parameters"], 255_750_144);
+        assert_eq!(json["blocks"].as_array().unwrap().len(), 36);
+        assert_eq!(json["blocks"][35]["attention"], "full");
+    }
+
+    #[test]
+    fn full_attention_grows_quadratically_and_linear_linearly() {
+        let tiny = config("tiny");
+        let full = |t| attention_flops(&tiny, AttentionKind::Full, t);
+        let linear = |t| attention_flops(&tiny, AttentionKind::Linear, t);
+        assert_eq!(full(512) / full(128), 16.0);
+        assert_eq!(linear(512) / linear(128), 4.0);
+        let kinds = vec![AttentionKind::Linear; 6];
+        let info = ModelInfo::new(&tiny, &kinds, 64);
+        assert_eq!(info.flops_per_frame.total, info.flops_per_frame_all_linear);
+        assert!(info.flops_per_frame_all_linear < info.flops_per_frame_all_full);
+        let f = info.flops_per_frame;
+        assert_eq!(
+            f.total,
+            f.tokenizer + f.projections + f.attention + f.nvs_head
+        );
+        // Projections and MLP: 24 T d^2 per block for an MLP ratio of 4.
+        assert_eq!(f.projections, 6.0 * 24.0 * 128.0 * 64.0 * 64.0);
+    }
+}

@@ -1,0 +1,97 @@
+//! Stage I and stage III of the cascade (paper Sec. 3.2): runs of transformer blocks, with
+//! taps on the hidden states that distillation reads.
+
+use burn::module::Module;
+use burn::tensor::Tensor;
+
+use crate::block::PrismBlock;
+
+/// Collects the hidden states (block outputs) of chosen blocks during a forward pass, in the
+/// order they were asked for. Blocks are named by their global index `0..M+N` (stage I's
+/// blocks first).
+#[derive(Debug)]
+pub struct HiddenStates {
+    wanted: Vec<usize>,
+    found: Vec<Option<Tensor<3>>>,
+}
+
+impl HiddenStates {
+    /// Taps the outputs of the blocks `wanted` (global indices; repeats allowed).
+    pub fn new(wanted: &[usize]) -> Self {
+        Self {
+            wanted: wanted.to_vec(),
+            found: vec![None; wanted.len()],
+        }
+    }
+
+    /// Whether nothing is asked for.
+    pub fn is_empty(&self) -> bool {
+        self.wanted.is_empty()
+    }
+
+    /// Records `x` as the output of block `index` if that block was asked for.
+    pub fn record(&mut self, index: usize, x: &Tensor<3>) {
+        for (slot, &wanted) in self.found.iter_mut().zip(&self.wanted) {
+            if wanted == index {
+                *slot = Some(x.clone());
+            }
+        }
+    }
+
+    /// The recorded states, in the order asked for.
+    ///
+    /// # Panics
+    /// If a block that was asked for did not run (an index beyond the network).
+    pub fn into_vec(self) -> Vec<Tensor<3>> {
+        self.found
+            .into_iter()
+            .zip(self.wanted)
+            .map(|(state, index)| {
+                state.unwrap_or_else(|| panic!("hidden state of block {index} was not computed"))
+            })
+            .collect()
+    }
+}
+
+/// Runs `blocks` on `x`, tapping block outputs; the first block has global index `first`.
+fn run_blocks(
+    blocks: &[PrismBlock],
+    mut x: Tensor<3>,
+    first: usize,
+    hidden: &mut HiddenStates,
+) -> Tensor<3> {
+    for (offset, block) in blocks.iter().enumerate() {
+        x = block.forward(x);
+        hidden.record(first + offset, &x);
+    }
+    x
+}
+
+/// Stage I, the encoder: `T_mid = T^(0 -> M-1)(T_in)`.
+#[derive(Module, Debug)]
+pub struct StageOne {
+    /// The `M` blocks, global indices `0..M`.
+    pub blocks: Vec<PrismBlock>,
+}
+
+impl StageOne {
+    /// `T_mid` from `T_in` (`[B, T, d]`), recording the requested hidden states.
+    pub fn forward(&self, t_in: Tensor<3>, hidden: &mut HiddenStates) -> Tensor<3> {
+        run_blocks(&self.blocks, t_in, 0, hidden)
+    }
+}
+
+/// Stage III, the decoder: `T_out = T_dec^(0 -> N-1)(T'_mid)`.
+#[derive(Module, Debug)]
+pub struct StageThree {
+    /// The `N` blocks, global indices `M..M+N`.
+    pub blocks: Vec<PrismBlock>,
+}
+
+impl StageThree {
+    /// `T_out` from `T'_mid` (`[B, T, d]`), recording the requested hidden states; `first` is
+    /// the global index of this stage's first block (`M`).
+    pub fn forward(&self, t_mid: Tensor<3>, first: usize, hidden: &mut HiddenStates) -> Tensor<3> {
+        run_blocks(&self.blocks, t_mid, first, hidden)
+    }
+}
