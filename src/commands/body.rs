@@ -6,10 +6,10 @@ use std::time::Instant;
 use burn::tensor::{Device, Tensor, TensorData};
 
 use clap::{Args, Subcommand};
+use prism_data::body::procedural;
 use prism_data::body::{BodyLayer, NUM_BETAS, NUM_EXPRESSION, NUM_JOINTS};
 use prism_data::people::{PeopleConfig, generate_with};
 use prism_data::{BackendKind, BodyModel, BodyParams};
-use prism_data::body::procedural;
 
 /// Body model commands.
 #[derive(Subcommand, Debug)]
@@ -144,7 +144,10 @@ fn bench(args: &BenchArgs) -> anyhow::Result<()> {
         let out = layer.forward(x, p, e);
         let _ = out.vertices.into_data();
     });
-    println!("tensor skinning forward            {:8.2} ms per batch", forward * 1e3);
+    println!(
+        "tensor skinning forward            {:8.2} ms per batch",
+        forward * 1e3
+    );
 
     let ad = args.backend.autodiff_device()?;
     let layer = BodyLayer::new(&model, &ad);
@@ -155,7 +158,10 @@ fn bench(args: &BenchArgs) -> anyhow::Result<()> {
         let grads = (out.vertices.sum() + out.joints.sum()).backward();
         let _ = p.grad(&grads).map(|g| g.into_data());
     });
-    println!("tensor skinning forward + backward {:8.2} ms per batch", backward * 1e3);
+    println!(
+        "tensor skinning forward + backward {:8.2} ms per batch",
+        backward * 1e3
+    );
 
     let mut params = BodyParams::rest(model.name());
     params.betas.copy_from_slice(&betas[..NUM_BETAS]);
@@ -166,7 +172,10 @@ fn bench(args: &BenchArgs) -> anyhow::Result<()> {
     let lbs = time(n, || {
         let _ = model.pose(&params);
     });
-    println!("f32 skinning                       {:8.2} ms per body", lbs * 1e3);
+    println!(
+        "f32 skinning                       {:8.2} ms per body",
+        lbs * 1e3
+    );
     for subdivisions in [1, 2] {
         let config = PeopleConfig { subdivisions };
         let mut seed = 0;
@@ -174,7 +183,10 @@ fn bench(args: &BenchArgs) -> anyhow::Result<()> {
             seed += 1;
             let _ = generate_with(&model, seed, &config);
         });
-        println!("people::generate (subdivisions {subdivisions})  {:8.2} ms per person", people * 1e3);
+        println!(
+            "people::generate (subdivisions {subdivisions})  {:8.2} ms per person",
+            people * 1e3
+        );
     }
     Ok(())
 }
