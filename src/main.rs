@@ -15,6 +15,9 @@ struct Cli {
 /// The subcommands; each variant's arguments and `run` live in `commands/`.
 #[derive(Subcommand, Debug)]
 enum Command {
+    /// The body model (SMPL-X layout) and the procedural humanoid.
+    #[command(subcommand)]
+    Body(commands::body::BodyCommand),
     /// Datasets: synthesise, render from scans, validate.
     #[command(subcommand)]
     Data(commands::data::DataCommand),
@@ -29,6 +32,7 @@ enum Command {
 fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Body(cmd) => cmd.run(),
         Command::Data(cmd) => cmd.run(),
         Command::Info(args) => args.run(),
         Command::Bench(args) => args.run(),

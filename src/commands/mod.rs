@@ -2,6 +2,7 @@
 //! library.
 
 pub mod bench;
+pub mod body;
 pub mod data;
 pub mod info;
 pub mod metrics;
