@@ -51,7 +51,10 @@ pub fn parse_rgb(text: &str) -> Result<[f32; 3], String> {
     let parts: Vec<&str> = text.split(',').map(str::trim).collect();
     let values: Vec<f32> = parts
         .iter()
-        .map(|p| p.parse::<f32>().map_err(|_| format!("`{p}` is not a number")))
+        .map(|p| {
+            p.parse::<f32>()
+                .map_err(|_| format!("`{p}` is not a number"))
+        })
         .collect::<Result<_, _>>()?;
     match values[..] {
         [r, g, b] if values.iter().all(|v| (0.0..=1.0).contains(v)) => Ok([r, g, b]),

@@ -3,15 +3,14 @@
 
 use std::path::Path;
 
-use glam::{Affine3A, Mat4};
 use serde::{Deserialize, Serialize};
 
-use crate::body::{BodyModel, BodyParams};
+use crate::body::BodyModel;
 use crate::camera::{Intrinsics, mat4_to_rows};
 use crate::dataset::render_subject::SubjectRender;
 use crate::dataset::schema::{FORMAT_NAME, FORMAT_VERSION};
 use crate::dataset::{DataError, DatasetMeta, DatasetWriter, Split, SubjectRecord};
-use crate::people;
+use crate::people::{self, PeopleConfig};
 use crate::protocol::{NUM_VIEWS, ViewingProtocol};
 use crate::raster::RenderOptions;
 
@@ -38,7 +37,14 @@ pub struct SynthOptions {
 
 impl Default for SynthOptions {
     fn default() -> Self {
-        Self { subjects: 16, resolution: 256, seed: 0, test_fraction: 0.125, background: [1.0; 3], supersample: 3 }
+        Self {
+            subjects: 16,
+            resolution: 256,
+            seed: 0,
+            test_fraction: 0.125,
+            background: [1.0; 3],
+            supersample: 3,
+        }
     }
 }
 
@@ -74,7 +80,10 @@ pub fn split(n: usize, test_fraction: f32) -> Split {
         0
     };
     let names: Vec<String> = (0..n).map(subject_name).collect();
-    Split { train: names[..n - test].to_vec(), test: names[n - test..].to_vec() }
+    Split {
+        train: names[..n - test].to_vec(),
+        test: names[n - test..].to_vec(),
+    }
 }
 
 /// The `dataset.json` of a synthetic dataset.
@@ -108,19 +117,30 @@ pub fn synth_dataset(
     on_view: &(dyn Fn() + Sync),
     on_subject: &dyn Fn(&str, bool),
 ) -> Result<SynthSummary, DataError> {
-    if options.subjects == 0 || options.resolution < 8 || !(0.0..1.0).contains(&options.test_fraction) {
+    if options.subjects == 0
+        || options.resolution < 8
+        || !(0.0..1.0).contains(&options.test_fraction)
+    {
         return Err(DataError::invalid(
             out,
             "synthesis needs at least 1 subject, a resolution of at least 8 px and a test fraction in [0, 1)",
         ));
     }
     if options.background.iter().any(|c| !(0.0..=1.0).contains(c)) {
-        return Err(DataError::invalid(out, "background components must be in [0, 1]"));
+        return Err(DataError::invalid(
+            out,
+            "background components must be in [0, 1]",
+        ));
     }
     let writer = DatasetWriter::open(out, dataset_meta(options))?;
     let model = BodyModel::procedural(BODY_MODEL_SEED);
+    let people_config = PeopleConfig::for_resolution(options.resolution);
     let protocol = ViewingProtocol::default();
-    let render_options = RenderOptions { supersample: options.supersample, background: options.background, ..Default::default() };
+    let render_options = RenderOptions {
+        supersample: options.supersample,
+        background: options.background,
+        ..Default::default()
+    };
     let intrinsics = Intrinsics::protocol_default(options.resolution, options.resolution);
     let mut summary = SynthSummary::default();
     for i in 0..options.subjects {
@@ -131,44 +151,33 @@ pub fn synth_dataset(
             continue;
         }
         let seed = subject_seed(options.seed, i);
-        let person = people::generate(&model, seed);
+        let person = people::generate_with(&model, seed, &people_config);
         let placement = protocol.placement(seed);
-        let to_world = placement.transform(person.height);
-        let mesh = transformed(&person.mesh, &to_world);
-        let body = placed_body(&person.body, &to_world);
         let record = SubjectRecord {
             source: format!("procedural:{seed}"),
-            mesh_to_world: mat4_to_rows(&to_world),
+            mesh_to_world: mat4_to_rows(&placement.transform(person.height)),
             height: placement.height,
         };
+        let person = person.placed(&placement);
         let views = protocol.views(seed);
-        let render = SubjectRender { protocol: &protocol, views: &views, intrinsics, options: &render_options };
-        render.write(&writer, &name, &mesh, &record, Some(&body), on_view)?;
+        let render = SubjectRender {
+            protocol: &protocol,
+            views: &views,
+            intrinsics,
+            options: &render_options,
+        };
+        render.write(
+            &writer,
+            &name,
+            &person.mesh,
+            &record,
+            Some(&person.body),
+            on_view,
+        )?;
         summary.written += 1;
         on_subject(&name, false);
     }
     Ok(summary)
-}
-
-/// A mesh moved by a similarity transform.
-fn transformed(mesh: &crate::Mesh, m: &Mat4) -> crate::Mesh {
-    let mut out = mesh.clone();
-    for p in &mut out.positions {
-        *p = m.transform_point3(*p);
-    }
-    out
-}
-
-/// Body parameters of a person placed in the world by the similarity `m` (uniform scale `s`
-/// and translation `t`): `world = s (scale * posed + transl) + t`.
-fn placed_body(body: &BodyParams, m: &Mat4) -> BodyParams {
-    let affine = Affine3A::from_mat4(*m);
-    let s = affine.matrix3.x_axis.length();
-    let t = affine.translation;
-    let mut out = body.clone();
-    out.scale = s * body.scale;
-    out.transl = (glam::Vec3::from_array(body.transl) * s + glam::Vec3::from(t)).to_array();
-    out
 }
 
 #[cfg(test)]
@@ -182,7 +191,11 @@ mod tests {
         assert_eq!(s.train.len(), 7);
         assert_eq!(split(3, 0.1).test.len(), 1, "at least one test subject");
         assert!(split(1, 0.5).test.is_empty(), "a single subject trains");
-        assert_eq!(split(4, 0.9).train.len(), 1, "at least one training subject");
+        assert_eq!(
+            split(4, 0.9).train.len(),
+            1,
+            "at least one training subject"
+        );
         assert!(split(5, 0.0).test.is_empty());
     }
 

@@ -48,8 +48,9 @@ impl SubjectRender<'_> {
             .par_iter()
             .map(|view| {
                 let camera = self.protocol.camera(view, self.intrinsics);
-                let out = render(mesh, &camera, self.options)
-                    .map_err(|e| DataError::invalid(&dir, format!("cannot render view {}: {e}", view.index)))?;
+                let out = render(mesh, &camera, self.options).map_err(|e| {
+                    DataError::invalid(&dir, format!("cannot render view {}: {e}", view.index))
+                })?;
                 let (rgb, mask) = images(&out);
                 subject.write_view(view.index, &rgb, &mask)?;
                 on_view();
@@ -67,8 +68,9 @@ impl SubjectRender<'_> {
             cameras.push(camera);
             source_points = source_points.or(points);
         }
-        let points = source_points
-            .ok_or_else(|| DataError::invalid(&dir, "the views do not include the source view 0"))?;
+        let points = source_points.ok_or_else(|| {
+            DataError::invalid(&dir, "the views do not include the source view 0")
+        })?;
         subject.finish(&cameras, &points, record, body)
     }
 }
@@ -77,6 +79,8 @@ impl SubjectRender<'_> {
 fn images(out: &RenderOutput) -> (Rgb32FImage, Mask) {
     let (w, h) = (out.width as u32, out.height as u32);
     let rgb = Rgb32FImage::from_fn(w, h, |x, y| Rgb(out.rgb[out.index(x as usize, y as usize)]));
-    let mask = Mask::from_fn(w, h, |x, y| Luma([out.alpha[out.index(x as usize, y as usize)]]));
+    let mask = Mask::from_fn(w, h, |x, y| {
+        Luma([out.alpha[out.index(x as usize, y as usize)]])
+    });
     (rgb, mask)
 }
