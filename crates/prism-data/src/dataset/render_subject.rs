@@ -54,7 +54,7 @@ impl SubjectRender<'_> {
                 let (rgb, mask) = images(&out);
                 subject.write_view(view.index, &rgb, &mask)?;
                 on_view();
-                let points = (view.index == SOURCE_VIEW).then(|| PointMap {
+                let points = (view.index == SOURCE_VIEW).then_some(PointMap {
                     width: out.width as u32,
                     height: out.height as u32,
                     points: out.points,
