@@ -54,6 +54,29 @@ pub enum SplitKind {
 }
 
 impl DatasetMeta {
+    /// Whether `other` describes the same dataset settings: everything but the subject list
+    /// and the split, which grow as subjects are written.
+    pub fn same_settings(&self, other: &DatasetMeta) -> bool {
+        let Self {
+            format,
+            version,
+            width,
+            height,
+            background,
+            views,
+            subjects: _,
+            split: _,
+            generator,
+        } = self;
+        *format == other.format
+            && *version == other.version
+            && *width == other.width
+            && *height == other.height
+            && *background == other.background
+            && *views == other.views
+            && *generator == other.generator
+    }
+
     /// The subjects of one split.
     pub fn subjects_of(&self, split: SplitKind) -> &[String] {
         match split {
