@@ -76,7 +76,7 @@ fn write_sphere_dataset(root: &Path, subjects: &[&str]) {
             mesh_to_world: glam::Mat4::IDENTITY.to_cols_array_2d(),
             height: 1.0,
         };
-        let body = serde_json::json!({"betas": vec![0.0; 10]});
+        let body = prism_data::BodyParams::rest("procedural:0");
         w.finish(&records, &points.unwrap(), &record, Some(&body))
             .unwrap();
     }
