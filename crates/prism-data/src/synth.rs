@@ -99,7 +99,10 @@ pub fn synth_dataset(
     on_subject: &dyn Fn(&str, bool),
 ) -> Result<SynthSummary, DataError> {
     if options.subjects == 0 {
-        return Err(DataError::invalid(out, "synthesis needs at least 1 subject"));
+        return Err(DataError::invalid(
+            out,
+            "synthesis needs at least 1 subject",
+        ));
     }
     check_settings(
         out,

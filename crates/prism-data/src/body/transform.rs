@@ -51,11 +51,7 @@ impl BodyModel {
 
     /// `J_0`, the rest root joint of the body shaped by `betas` and `expression` (the point the
     /// global orientation turns about).
-    pub fn root_joint(
-        &self,
-        betas: &[f32; NUM_BETAS],
-        expression: &[f32; NUM_EXPRESSION],
-    ) -> Vec3 {
+    pub fn root_joint(&self, betas: &[f32; NUM_BETAS], expression: &[f32; NUM_EXPRESSION]) -> Vec3 {
         let v = self.num_vertices();
         let row = &self.j_regressor[..v];
         let shaped = self.shaped(betas, expression);
@@ -203,7 +199,9 @@ mod tests {
             let e = fit.transformed(&model, m).unwrap_err().to_string();
             assert!(e.contains("cannot move the body fit"), "{e}");
         }
-        let e = BodyModel::load_named("procedural:x").unwrap_err().to_string();
+        let e = BodyModel::load_named("procedural:x")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("procedural:SEED"), "{e}");
         let e = BodyModel::load_named("/nonexistent/SMPLX.npz")
             .unwrap_err()

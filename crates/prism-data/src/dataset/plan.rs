@@ -112,7 +112,10 @@ mod tests {
         assert_eq!(s.test, vec!["s7"]);
         assert_eq!(s.train.len(), 7);
         assert_eq!(split_last(&names(3), 0.1).test.len(), 1, "at least one");
-        assert!(split_last(&names(1), 0.5).test.is_empty(), "a single subject trains");
+        assert!(
+            split_last(&names(1), 0.5).test.is_empty(),
+            "a single subject trains"
+        );
         assert_eq!(split_last(&names(4), 0.9).train.len(), 1, "one trains");
         assert!(split_last(&names(5), 0.0).test.is_empty());
         assert_eq!(split_last(&[], 0.5), Split::default());
@@ -132,7 +135,11 @@ mod tests {
     fn settings_are_checked_and_named() {
         let out = Path::new("ds");
         assert!(check_settings(out, 32, 0.1, [1.0; 3]).is_ok());
-        for (res, f, bg) in [(4, 0.1, [1.0; 3]), (32, 1.0, [1.0; 3]), (32, 0.1, [2.0, 0.0, 0.0])] {
+        for (res, f, bg) in [
+            (4, 0.1, [1.0; 3]),
+            (32, 1.0, [1.0; 3]),
+            (32, 0.1, [2.0, 0.0, 0.0]),
+        ] {
             let e = check_settings(out, res, f, bg).unwrap_err().to_string();
             assert!(e.starts_with("ds: "), "{e}");
         }
