@@ -88,7 +88,13 @@ fn render_reports_failures_checks_and_reruns() {
 
     // The broken scan is reported with its file and line, the others render, status 1.
     let out = render(&scans, &data);
-    assert_eq!(out.status.code(), Some(1), "{}{}", stdout(&out), stderr(&out));
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "{}{}",
+        stdout(&out),
+        stderr(&out)
+    );
     let err = stderr(&out);
     assert!(
         err.contains("warning: 0001:") && err.contains("material0.jpeg"),
@@ -133,12 +139,22 @@ fn render_reports_failures_checks_and_reruns() {
         let lo = ys.iter().copied().fold(f32::MAX, f32::min);
         // At 32 px a pixel spans about 6.6 cm on the subject.
         assert!(lo >= -1e-4 && lo < 0.14, "{name}: {lo}");
-        assert!(hi <= record.height + 1e-4 && hi > record.height - 0.14, "{name}: {hi}");
-        assert!(hi - lo > 1.60 && hi - lo <= 1.85 + 1e-4, "{name}: {lo}..{hi}");
+        assert!(
+            hi <= record.height + 1e-4 && hi > record.height - 0.14,
+            "{name}: {hi}"
+        );
+        assert!(
+            hi - lo > 1.60 && hi - lo <= 1.85 + 1e-4,
+            "{name}: {lo}..{hi}"
+        );
     }
     assert!(reader.body_path("0000").exists() && !reader.body_path("0001").exists());
     let body = BodyParams::load(reader.body_path("0000")).unwrap();
-    assert!((body.scale - 100.0 * 1.8 / 170.0).abs() < 0.06, "{}", body.scale);
+    assert!(
+        (body.scale - 100.0 * 1.8 / 170.0).abs() < 0.06,
+        "{}",
+        body.scale
+    );
 
     // A rerun skips the finished subjects and still reports the broken one.
     let out = render(&scans, &data);
@@ -152,7 +168,11 @@ fn render_reports_failures_checks_and_reruns() {
     write_scan(&scans, "0002", true);
     let out = render(&scans, &data);
     assert!(out.status.success(), "{}{}", stdout(&out), stderr(&out));
-    assert!(stdout(&out).contains("1 subjects rendered"), "{}", stdout(&out));
+    assert!(
+        stdout(&out).contains("1 subjects rendered"),
+        "{}",
+        stdout(&out)
+    );
     let check = prism(&["data", "check", data.to_str().unwrap()]);
     assert!(
         stdout(&check).contains("ok (3 subjects, 315 views)"),
@@ -188,8 +208,15 @@ fn render_rejects_bad_arguments_with_one_line() {
         (&["--background", "1,2,0"][..], "[0, 1]"),
     ] {
         let out = run(extra);
-        assert_eq!(out.status.code(), Some(if extra[0] == "--res" { 1 } else { 2 }));
-        assert!(stderr(&out).contains(expected), "{extra:?}: {}", stderr(&out));
+        assert_eq!(
+            out.status.code(),
+            Some(if extra[0] == "--res" { 1 } else { 2 })
+        );
+        assert!(
+            stderr(&out).contains(expected),
+            "{extra:?}: {}",
+            stderr(&out)
+        );
         assert!(!stderr(&out).contains("panicked"));
     }
     assert!(!out_dir.exists(), "nothing written for bad arguments");

@@ -176,25 +176,26 @@ fn render(args: RenderArgs) -> anyhow::Result<()> {
         .progress_chars("=> "),
     );
     let start = std::time::Instant::now();
-    let summary = render_scans(
-        &args.scans,
-        &args.out,
-        &options,
-        &|| bar.inc(1),
-        &|event| match event {
-            ScanEvent::Planned { to_render, .. } => {
-                bar.set_length((to_render * NUM_VIEWS) as u64)
-            }
-            ScanEvent::Skipped(_) => {}
-            ScanEvent::Rendered(name) => bar.set_message(name.to_string()),
-            ScanEvent::Warning { subject, message } => {
-                bar.suspend(|| eprintln!("warning: {subject}: {message}"))
-            }
-            ScanEvent::Failed { subject, message } => {
-                bar.suspend(|| eprintln!("error: {subject}: {message} (skipped)"))
-            }
-        },
-    )?;
+    let summary =
+        render_scans(
+            &args.scans,
+            &args.out,
+            &options,
+            &|| bar.inc(1),
+            &|event| match event {
+                ScanEvent::Planned { to_render, .. } => {
+                    bar.set_length((to_render * NUM_VIEWS) as u64)
+                }
+                ScanEvent::Skipped(_) => {}
+                ScanEvent::Rendered(name) => bar.set_message(name.to_string()),
+                ScanEvent::Warning { subject, message } => {
+                    bar.suspend(|| eprintln!("warning: {subject}: {message}"))
+                }
+                ScanEvent::Failed { subject, message } => {
+                    bar.suspend(|| eprintln!("error: {subject}: {message} (skipped)"))
+                }
+            },
+        )?;
     bar.finish_and_clear();
     for name in &summary.moved {
         eprintln!(
