@@ -363,38 +363,67 @@ mod tests {
 
     #[test]
     fn projection_backward_matches_finite_differences() {
+        check_projection_backward(params());
+    }
+
+    #[test]
+    fn projection_backward_matches_finite_differences_outside_the_guard_band() {
+        // Far to the side and below the image: both ratios x/z, y/z are clamped in J.
         let v = view();
-        let w = ProjectedGrads {
-            uv: [0.3, -0.7],
-            depth: 0.9,
-            conic: [20.0, -35.0, 12.0],
-            opacity: 0.5,
-        };
-        let p = params();
-        let g = project_backward(&p, &v, &w);
-        let analytic: Vec<f32> = g
-            .mean
-            .iter()
-            .chain(&g.log_scale)
-            .chain(&g.rotation)
-            .chain([&g.opacity_logit])
-            .copied()
-            .collect();
-        for (k, &an) in analytic.iter().enumerate() {
-            let h = 1e-3;
-            let shifted = |d: f32| {
-                let mut q = p;
-                match k {
-                    0..3 => q.mean[k] += d,
-                    3..6 => q.log_scale[k - 3] += d,
-                    6..10 => q.rotation[k - 6] += d,
-                    _ => q.opacity_logit += d,
-                }
-                objective(&q, &v, &w)
-            };
-            let fd = ((shifted(h) - shifted(-h)) / (2.0 * h as f64)) as f32;
-            let tol = 2e-2 * fd.abs().max(an.abs()).max(1e-2);
-            assert!((fd - an).abs() < tol, "param {k}: fd {fd} analytic {an}");
+        let mut p = params();
+        let cam = Vec3::new(2.5, 2.2, 2.0);
+        p.mean = (v.rotation.transpose() * (cam - v.translation)).to_array();
+        let lim = v.ratio_limits();
+        assert!(cam.x / cam.z > lim[0][1] && cam.y / cam.z > lim[1][1]);
+        check_projection_backward(p);
+    }
+
+    /// Checks each projected quantity's chain rule on its own, so that a small part (such as
+    /// the conic's dependence on depth) is not hidden behind a large one.
+    fn check_projection_backward(p: Params) {
+        let v = view();
+        let weights = [
+            ProjectedGrads {
+                uv: [0.3, -0.7],
+                ..Default::default()
+            },
+            ProjectedGrads {
+                depth: 0.9,
+                opacity: 0.5,
+                ..Default::default()
+            },
+            ProjectedGrads {
+                conic: [20.0, -35.0, 12.0],
+                ..Default::default()
+            },
+        ];
+        for w in &weights {
+            let g = project_backward(&p, &v, w);
+            let analytic: Vec<f32> = g
+                .mean
+                .iter()
+                .chain(&g.log_scale)
+                .chain(&g.rotation)
+                .chain([&g.opacity_logit])
+                .copied()
+                .collect();
+            let scale = analytic.iter().fold(0.0f32, |m, a| m.max(a.abs()));
+            for (k, &an) in analytic.iter().enumerate() {
+                let h = 1e-3;
+                let shifted = |d: f32| {
+                    let mut q = p;
+                    match k {
+                        0..3 => q.mean[k] += d,
+                        3..6 => q.log_scale[k - 3] += d,
+                        6..10 => q.rotation[k - 6] += d,
+                        _ => q.opacity_logit += d,
+                    }
+                    objective(&q, &v, w)
+                };
+                let fd = ((shifted(h) - shifted(-h)) / (2.0 * h as f64)) as f32;
+                let tol = 1e-2 * fd.abs().max(an.abs()).max(1e-2 * scale);
+                assert!((fd - an).abs() < tol, "param {k}: fd {fd} analytic {an} ({w:?})");
+            }
         }
     }
 
