@@ -8,6 +8,7 @@
 //! `[B, C, H, W]` tensors.
 
 pub mod error;
+pub mod files;
 pub mod splat;
 
 pub use error::RenderError;
