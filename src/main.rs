@@ -14,11 +14,17 @@ struct Cli {
 
 /// The subcommands; each variant's arguments and `run` live in `commands/`.
 #[derive(Subcommand, Debug)]
-enum Command {}
+enum Command {
+    /// 3D Gaussian splatting: render standard 3DGS PLY files.
+    #[command(subcommand)]
+    Splat(commands::splat::SplatCommand),
+}
 
 fn main() {
     let cli = Cli::parse();
-    let result: anyhow::Result<()> = match cli.command {};
+    let result: anyhow::Result<()> = match cli.command {
+        Command::Splat(cmd) => cmd.run(),
+    };
     if let Err(err) = result {
         eprintln!("error: {err:#}");
         std::process::exit(1);
