@@ -59,15 +59,32 @@ fn renders_a_ply_file_into_a_png() {
     let (ply, cam) = scene(&dir);
     let out = dir.join("out.png");
     let run = prism(&[
-        "splat", "render", "--ply", s(&ply), "--camera", s(&cam), "--out", s(&out),
-        "--background", "0,0,1", "--backend", "ndarray",
+        "splat",
+        "render",
+        "--ply",
+        s(&ply),
+        "--camera",
+        s(&cam),
+        "--out",
+        s(&out),
+        "--background",
+        "0,0,1",
+        "--backend",
+        "ndarray",
     ]);
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
     let image = image::open(&out).unwrap().to_rgb8();
     assert_eq!(image.dimensions(), (48, 40));
     // The red Gaussian covers the centre (the orbit centre projects to (24, 20)).
     let centre = image.get_pixel(23, 19).0;
-    assert!(centre[0] > 200 && centre[1] < 60 && centre[2] < 60, "{centre:?}");
+    assert!(
+        centre[0] > 200 && centre[1] < 60 && centre[2] < 60,
+        "{centre:?}"
+    );
     // Off the small red one but on the wide green one (further away, centred at (24.8, 19.2)).
     let side = image.get_pixel(31, 19).0;
     assert!(side[0] == 0 && side[1] > 80, "{side:?}");
@@ -77,8 +94,16 @@ fn renders_a_ply_file_into_a_png() {
     // The same on flex, the default backend.
     let out_flex = dir.join("flex.png");
     let run = prism(&[
-        "splat", "render", "--ply", s(&ply), "--camera", s(&cam), "--out", s(&out_flex),
-        "--background", "0,0,1",
+        "splat",
+        "render",
+        "--ply",
+        s(&ply),
+        "--camera",
+        s(&cam),
+        "--out",
+        s(&out_flex),
+        "--background",
+        "0,0,1",
     ]);
     assert!(run.status.success());
     assert_eq!(image::open(&out_flex).unwrap().to_rgb8(), image);
@@ -99,10 +124,22 @@ fn a_bad_background_is_a_clear_error() {
     let dir = temp_dir("bg");
     let (ply, cam) = scene(&dir);
     let out = dir.join("out.png");
-    for (bg, needle) in [("0,1.5,0", "1.5 is outside [0, 1]"), ("0,0", "expected R,G,B"), ("a,0,0", "`a` is not a number")] {
+    for (bg, needle) in [
+        ("0,1.5,0", "1.5 is outside [0, 1]"),
+        ("0,0", "expected R,G,B"),
+        ("a,0,0", "`a` is not a number"),
+    ] {
         let run = prism(&[
-            "splat", "render", "--ply", s(&ply), "--camera", s(&cam), "--out", s(&out),
-            "--background", bg,
+            "splat",
+            "render",
+            "--ply",
+            s(&ply),
+            "--camera",
+            s(&cam),
+            "--out",
+            s(&out),
+            "--background",
+            bg,
         ]);
         assert_fails(&run, needle, &out);
     }
@@ -115,19 +152,55 @@ fn missing_or_broken_inputs_are_errors_naming_the_file() {
     let (ply, cam) = scene(&dir);
     let out = dir.join("out.png");
     let missing = dir.join("missing.ply");
-    let run = prism(&["splat", "render", "--ply", s(&missing), "--camera", s(&cam), "--out", s(&out)]);
+    let run = prism(&[
+        "splat",
+        "render",
+        "--ply",
+        s(&missing),
+        "--camera",
+        s(&cam),
+        "--out",
+        s(&out),
+    ]);
     assert_fails(&run, "missing.ply", &out);
     let broken = dir.join("broken.json");
     std::fs::write(&broken, "{\"fx\": 10}").unwrap();
-    let run = prism(&["splat", "render", "--ply", s(&ply), "--camera", s(&broken), "--out", s(&out)]);
+    let run = prism(&[
+        "splat",
+        "render",
+        "--ply",
+        s(&ply),
+        "--camera",
+        s(&broken),
+        "--out",
+        s(&out),
+    ]);
     assert_fails(&run, "broken.json", &out);
     let not_ply = dir.join("cam-as.ply");
     std::fs::copy(&cam, &not_ply).unwrap();
-    let run = prism(&["splat", "render", "--ply", s(&not_ply), "--camera", s(&cam), "--out", s(&out)]);
+    let run = prism(&[
+        "splat",
+        "render",
+        "--ply",
+        s(&not_ply),
+        "--camera",
+        s(&cam),
+        "--out",
+        s(&out),
+    ]);
     assert_fails(&run, "cam-as.ply", &out);
     // An output directory that does not exist: nothing is left behind.
     let nowhere = dir.join("no/such/out.png");
-    let run = prism(&["splat", "render", "--ply", s(&ply), "--camera", s(&cam), "--out", s(&nowhere)]);
+    let run = prism(&[
+        "splat",
+        "render",
+        "--ply",
+        s(&ply),
+        "--camera",
+        s(&cam),
+        "--out",
+        s(&nowhere),
+    ]);
     assert_fails(&run, "out.png", &nowhere);
     std::fs::remove_dir_all(dir).unwrap();
 }

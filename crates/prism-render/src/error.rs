@@ -8,13 +8,16 @@ pub enum RenderError {
     /// Tensor shapes or cameras that do not fit together.
     #[error("invalid splat input: {0}")]
     Input(String),
+    /// A value given by the user (such as a background colour) is not valid.
+    #[error("{0}")]
+    Value(String),
     /// A file could not be read or written.
-    #[error("{path}: {source}")]
+    #[error("{path}: {error}")]
     Io {
         /// The file.
         path: PathBuf,
-        /// The underlying error.
-        source: std::io::Error,
+        /// The underlying error (part of the message, so not also a `source`).
+        error: std::io::Error,
     },
     /// A file was read but its content is not what it should be.
     #[error("{path}: {message}")]
@@ -28,10 +31,10 @@ pub enum RenderError {
 
 impl RenderError {
     /// An [`RenderError::Io`] for `path`.
-    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+    pub fn io(path: impl Into<PathBuf>, error: std::io::Error) -> Self {
         Self::Io {
             path: path.into(),
-            source,
+            error,
         }
     }
 

@@ -24,7 +24,8 @@ fn random_cloud(n: usize, degree: usize, seed: u64) -> GaussianCloud {
             .map(|_| std::array::from_fn(|_| rng.random_range(lo..hi)))
             .collect()
     };
-    let (means, normals, sh_dc, log_scales) = (a3(-1.0, 1.0), a3(-1.0, 1.0), a3(-2.0, 2.0), a3(-5.0, -1.0));
+    let (means, normals, sh_dc, log_scales) =
+        (a3(-1.0, 1.0), a3(-1.0, 1.0), a3(-2.0, 2.0), a3(-5.0, -1.0));
     let mut rng = ChaCha8Rng::seed_from_u64(seed + 1);
     GaussianCloud {
         means,
@@ -68,12 +69,20 @@ fn files_round_trip_exactly_for_every_sh_degree() {
 #[test]
 fn a_hand_made_degree_3_file_is_read_field_by_field() {
     // The reference layout, written out here independently of the writer.
-    let mut names: Vec<String> = ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
-        .map(String::from)
-        .to_vec();
+    let mut names: Vec<String> = [
+        "x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2",
+    ]
+    .map(String::from)
+    .to_vec();
     names.extend((0..45).map(|k| format!("f_rest_{k}")));
-    names.extend(["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"].map(String::from));
-    let mut bytes = b"ply\nformat binary_little_endian 1.0\ncomment degree 3\nelement vertex 2\n".to_vec();
+    names.extend(
+        [
+            "opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3",
+        ]
+        .map(String::from),
+    );
+    let mut bytes =
+        b"ply\nformat binary_little_endian 1.0\ncomment degree 3\nelement vertex 2\n".to_vec();
     for n in &names {
         bytes.extend(format!("property float {n}\n").bytes());
     }
@@ -114,11 +123,17 @@ fn missing_and_unwritable_files_are_errors_naming_them() {
     let err = GaussianCloud::read(&missing).unwrap_err().to_string();
     assert!(err.contains("nothing.ply"), "{err}");
     let cloud = random_cloud(3, 1, 9);
-    let err = cloud.write(dir.join("no/dir/x.ply")).unwrap_err().to_string();
+    let err = cloud
+        .write(dir.join("no/dir/x.ply"))
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("x.ply"), "{err}");
     let mut broken = cloud;
     broken.sh_rest.pop();
-    let err = broken.write(dir.join("broken.ply")).unwrap_err().to_string();
+    let err = broken
+        .write(dir.join("broken.ply"))
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("sh_rest"), "{err}");
     assert!(!dir.join("broken.ply").exists());
     std::fs::remove_dir_all(dir).unwrap();

@@ -74,7 +74,9 @@ fn fitting_a_few_hundred_gaussians_to_an_image_cuts_the_error_tenfold() {
     let target = Tensor::<4>::from_data(TensorData::new(target(size), [1, 3, size, size]), &dev);
     let black = background(&[0.0, 0.0, 0.0], &dev);
     let mse = |s: &Splats| {
-        let image = render(&s.gaussians(), &[camera]).unwrap().over(black.clone());
+        let image = render(&s.gaussians(), &[camera])
+            .unwrap()
+            .over(black.clone());
         (image - target.clone()).powi_scalar(2).mean()
     };
 

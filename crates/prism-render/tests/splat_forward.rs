@@ -42,7 +42,10 @@ fn check_against(r: &Rendered, colour: &[f32], z: f32, expected_alpha: impl Fn(f
             );
             for (k, col) in colour.iter().enumerate().take(c) {
                 let got = pixel(&f, k, h, w, y, x);
-                assert!((got - alpha * col).abs() < 2e-6, "feature {k} at ({x}, {y})");
+                assert!(
+                    (got - alpha * col).abs() < 2e-6,
+                    "feature {k} at ({x}, {y})"
+                );
             }
             let depth = pixel(&d, 0, h, w, y, x);
             if alpha > 0.0 {
@@ -64,7 +67,13 @@ fn one_isotropic_gaussian_renders_to_the_analytic_2d_gaussian() {
     let colour = [0.2, 0.5, 0.9];
     let mut scene = Scene::new(1, 3);
     // Any rotation leaves an isotropic Gaussian unchanged.
-    scene.push([0.0, 0.0, z], [s.ln(); 3], [0.3, -0.5, 0.7, 0.2], o, &colour);
+    scene.push(
+        [0.0, 0.0, z],
+        [s.ln(); 3],
+        [0.3, -0.5, 0.7, 0.2],
+        o,
+        &colour,
+    );
     let camera = axis_camera(f, 20.3, 17.8, 40, 36);
     let r = render(&scene.tensors(&dev), &[camera]).unwrap();
     let var = (f * s / z).powi(2) + 0.3;
@@ -107,8 +116,20 @@ fn cluster() -> Scene {
     let mut scene = Scene::new(1, 2);
     let q = [0.9, 0.1, -0.3, 0.25];
     scene.push([0.0, 0.0, 2.0], [-2.8, -3.3, -3.0], q, 0.9, &[1.0, 0.2]);
-    scene.push([0.05, -0.03, 1.8], [-3.1, -2.9, -3.4], [1.0, 0.0, 0.0, 0.0], 0.6, &[0.3, 0.8]);
-    scene.push([-0.04, 0.02, 2.4], [-2.7, -3.4, -2.5], [0.5, 0.5, 0.5, -0.5], 0.75, &[0.5, 0.5]);
+    scene.push(
+        [0.05, -0.03, 1.8],
+        [-3.1, -2.9, -3.4],
+        [1.0, 0.0, 0.0, 0.0],
+        0.6,
+        &[0.3, 0.8],
+    );
+    scene.push(
+        [-0.04, 0.02, 2.4],
+        [-2.7, -3.4, -2.5],
+        [0.5, 0.5, 0.5, -0.5],
+        0.75,
+        &[0.5, 0.5],
+    );
     scene.push([0.02, 0.06, 2.1], [-3.5, -3.5, -3.5], q, 0.95, &[0.9, 0.1]);
     scene
 }
@@ -167,7 +188,8 @@ fn front_to_back_compositing_with_occlusion_and_input_order_independence() {
     let (o1, o2) = (0.6f32, 0.7f32);
     let near = ([0.0, 0.0, 1.0], [-2.0; 3], o1, [1.0, 0.0, 0.25]);
     let far = ([0.0, 0.0, 3.0], [-1.0; 3], o2, [0.0, 1.0, 0.5]);
-    let render_in = |order: [&([f32; 3], [f32; 3], f32, [f32; 3]); 2]| {
+    type Blob = ([f32; 3], [f32; 3], f32, [f32; 3]);
+    let render_in = |order: [&Blob; 2]| {
         let mut scene = Scene::new(1, 3);
         for (m, s, o, f) in order {
             scene.push(*m, *s, [1.0, 0.0, 0.0, 0.0], *o, f);
@@ -204,7 +226,13 @@ fn compositing_stops_before_the_transmittance_falls_below_1e_4() {
     // Large, nearly flat Gaussians: alpha ~ 0.95 at the centre pixel, 1.0e-4 < T after three
     // of them, and the fourth would take T to ~6e-6: it must not be drawn (its feature is huge).
     for (k, f) in [1.0f32, 2.0, 3.0, 1000.0].iter().enumerate() {
-        scene.push([0.0, 0.0, 1.0 + k as f32], [2.0; 3], [1.0, 0.0, 0.0, 0.0], 0.95, &[*f]);
+        scene.push(
+            [0.0, 0.0, 1.0 + k as f32],
+            [2.0; 3],
+            [1.0, 0.0, 0.0, 0.0],
+            0.95,
+            &[*f],
+        );
     }
     let r = render(&scene.tensors(&dev), &[camera]).unwrap();
     let v = pixel(&host(r.features), 0, 16, 16, 8, 8);
@@ -219,7 +247,10 @@ fn compositing_stops_before_the_transmittance_falls_below_1e_4() {
 fn a_batch_renders_each_element_in_its_own_camera() {
     let dev = device();
     let mut one = cluster();
-    let cams = [orbit_camera(24, 20, 30.0, 10.0, 5.0), orbit_camera(24, 20, 30.0, -20.0, -8.0)];
+    let cams = [
+        orbit_camera(24, 20, 30.0, 10.0, 5.0),
+        orbit_camera(24, 20, 30.0, -20.0, -8.0),
+    ];
     // Batch element 1 holds the same Gaussians moved into the orbit's centre.
     for m in one.means.chunks_mut(3) {
         m[1] += 0.9;
@@ -245,7 +276,13 @@ fn a_batch_renders_each_element_in_its_own_camera() {
 fn over_composites_the_background_behind_the_gaussians() {
     let dev = device();
     let mut scene = Scene::new(1, 3);
-    scene.push([0.0, 0.0, 2.0], [-2.0; 3], [1.0, 0.0, 0.0, 0.0], 0.8, &[1.0, 0.0, 0.0]);
+    scene.push(
+        [0.0, 0.0, 2.0],
+        [-2.0; 3],
+        [1.0, 0.0, 0.0, 0.0],
+        0.8,
+        &[1.0, 0.0, 0.0],
+    );
     let r = render(&scene.tensors(&dev), &[axis_camera(30.0, 8.0, 8.0, 16, 16)]).unwrap();
     let image = host(r.over(background(&[0.0, 0.0, 1.0], &dev)));
     let alpha = host(r.alpha);
@@ -261,7 +298,13 @@ fn over_composites_the_background_behind_the_gaussians() {
 fn gaussians_behind_the_camera_or_on_its_plane_are_not_drawn() {
     let dev = device();
     let mut scene = Scene::new(1, 1);
-    scene.push([0.0, 0.0, -1.0], [0.0; 3], [1.0, 0.0, 0.0, 0.0], 0.9, &[1.0]);
+    scene.push(
+        [0.0, 0.0, -1.0],
+        [0.0; 3],
+        [1.0, 0.0, 0.0, 0.0],
+        0.9,
+        &[1.0],
+    );
     scene.push([0.0, 0.0, 0.0], [0.0; 3], [1.0, 0.0, 0.0, 0.0], 0.9, &[1.0]);
     let r = render(&scene.tensors(&dev), &[axis_camera(30.0, 8.0, 8.0, 16, 16)]).unwrap();
     assert!(host(r.alpha).iter().all(|&a| a == 0.0));
@@ -274,7 +317,10 @@ fn mismatched_inputs_are_clear_errors() {
     let cam = axis_camera(30.0, 8.0, 8.0, 16, 16);
     let err = render(&scene.tensors(&dev), &[cam, cam]).unwrap_err();
     assert!(matches!(err, RenderError::Input(_)), "{err}");
-    assert!(err.to_string().contains("2 cameras for a batch of 1"), "{err}");
+    assert!(
+        err.to_string().contains("2 cameras for a batch of 1"),
+        "{err}"
+    );
     let mut g = scene.tensors(&dev);
     g.rotations = g.rotations.narrow(2, 0, 3);
     let err = render(&g, &[cam]).unwrap_err();

@@ -37,7 +37,9 @@ fn scene(seed: u64, camera: &Camera, channels: usize) -> Scene {
         let mut rotation: [f32; 4] = std::array::from_fn(|_| rng.random_range(-1.0f32..1.0));
         rotation[0] += 1.5 * (k as f32 - 1.5).signum();
         let opacity = rng.random_range(0.5f32..0.85);
-        let features: Vec<f32> = (0..channels).map(|_| rng.random_range(-0.5f32..1.0)).collect();
+        let features: Vec<f32> = (0..channels)
+            .map(|_| rng.random_range(-0.5f32..1.0))
+            .collect();
         s.push(mean.to_array(), log_scale, rotation, opacity, &features);
     }
     s
@@ -121,14 +123,20 @@ impl Weights {
 fn check_gradients(seed: u64, camera: Camera, channels: usize) {
     let dev = device();
     let ad = dev.clone().autodiff();
-    let (w, h) = (camera.intrinsics.width as usize, camera.intrinsics.height as usize);
+    let (w, h) = (
+        camera.intrinsics.width as usize,
+        camera.intrinsics.height as usize,
+    );
     let base = scene(seed, &camera, channels);
     let weights = Weights::new(seed + 100, channels, h, w);
 
     // The scene must be smooth in the image: every pixel covered.
     let r = render(&base.tensors(&dev), &[camera]).unwrap();
     let alpha = host(r.alpha);
-    assert!(alpha.iter().all(|&a| a > 0.3 && a < 0.999), "not a smooth scene");
+    assert!(
+        alpha.iter().all(|&a| a > 0.3 && a < 0.999),
+        "not a smooth scene"
+    );
     for i in 0..base.count {
         let mut one = base.clone();
         one.count = 1;
@@ -137,7 +145,10 @@ fn check_gradients(seed: u64, camera: Camera, channels: usize) {
             *v = v[i * per..(i + 1) * per].to_vec();
         }
         let alpha = host(render(&one.tensors(&dev), &[camera]).unwrap().alpha);
-        assert!(alpha.iter().all(|&a| a > 0.0), "Gaussian {i} does not cover the image");
+        assert!(
+            alpha.iter().all(|&a| a > 0.0),
+            "Gaussian {i} does not cover the image"
+        );
     }
 
     // Analytic gradients through the autodiff graph.
@@ -178,7 +189,10 @@ fn check_gradients(seed: u64, camera: Camera, channels: usize) {
             let rel = (a as f64 - fd).abs() / denom;
             if rel > worst.0 {
                 let name = base.clone().kinds_mut()[kind].0;
-                worst = (rel, format!("{name}[{i}]: analytic {a}, finite difference {fd}"));
+                worst = (
+                    rel,
+                    format!("{name}[{i}]: analytic {a}, finite difference {fd}"),
+                );
             }
         }
         assert!(worst.0 < 1e-2, "relative error {}: {}", worst.0, worst.1);
@@ -223,7 +237,9 @@ fn batched_gradients_are_per_element_gradients_on_ndarray_and_flex() {
     };
     let ndarray = device().autodiff();
     let flex = prism_data::BackendKind::Flex.device().unwrap().autodiff();
-    let elements: Vec<Scene> = (0..2).map(|b| scene(10 + b, &cams[b as usize], 2)).collect();
+    let elements: Vec<Scene> = (0..2)
+        .map(|b| scene(10 + b, &cams[b as usize], 2))
+        .collect();
     let mut batch = elements[0].clone();
     batch.batch = 2;
     for (k, (_, v)) in batch.kinds_mut().into_iter().enumerate() {

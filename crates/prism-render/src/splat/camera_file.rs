@@ -74,7 +74,9 @@ impl ViewRecord {
             .to_cols_array()
             .iter()
             .all(|v| v.abs() < 1e-3);
-        if !orthonormal || (r.determinant() - 1.0).abs() > 1e-3 || self.c2w[3] != [0.0, 0.0, 0.0, 1.0]
+        if !orthonormal
+            || (r.determinant() - 1.0).abs() > 1e-3
+            || self.c2w[3] != [0.0, 0.0, 0.0, 1.0]
         {
             return Err("c2w is not a rigid camera-to-world transform".into());
         }

@@ -15,10 +15,10 @@ pub mod ply;
 pub mod render;
 pub mod snapshot;
 
+pub use camera_file::read_camera;
 pub use host::{
     DILATION, EXTENT_SIGMAS, MAX_ALPHA, MIN_ALPHA, MIN_TRANSMITTANCE, NEAR_PLANE, TILE_SIZE,
 };
-pub use camera_file::read_camera;
 pub use ply::{GaussianCloud, SH_C0};
 pub use render::{Gaussians, Rendered, background, render};
 pub use snapshot::{parse_background, render_cloud, save_png};

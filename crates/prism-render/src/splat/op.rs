@@ -20,8 +20,7 @@ use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{
-    Autodiff, Backend, ExtensionType, Flex, NdArray, TensorMetadata,
-    backend_extension,
+    Autodiff, Backend, ExtensionType, Flex, NdArray, TensorMetadata, backend_extension,
 };
 use burn::tensor::{TensorData, read_sync};
 use prism_data::Camera;
@@ -223,11 +222,7 @@ impl<B: Backend, C: CheckpointStrategy> SplatBackend for Autodiff<B, C> {
             opacity_logits: inputs.opacity_logits.into_primitive(),
             features: inputs.features.into_primitive(),
         };
-        match SplatBackward
-            .prepare::<C>(nodes)
-            .compute_bound()
-            .stateful()
-        {
+        match SplatBackward.prepare::<C>(nodes).compute_bound().stateful() {
             OpsKind::Tracked(prep) => {
                 let device = inner.means.device();
                 let (output, inputs, tapes) = forward_on_host::<B>(inner, &cameras);

@@ -178,7 +178,8 @@ impl GaussianCloud {
     /// three feature channels.
     pub fn to_gaussians(&self, device: &Device) -> Gaussians {
         let n = self.len();
-        let t = |v: Vec<f32>, c: usize| Tensor::<3>::from_data(TensorData::new(v, [1, n, c]), device);
+        let t =
+            |v: Vec<f32>, c: usize| Tensor::<3>::from_data(TensorData::new(v, [1, n, c]), device);
         Gaussians {
             means: t(self.means.concat(), 3),
             log_scales: t(self.log_scales.concat(), 3),
@@ -195,7 +196,7 @@ impl GaussianCloud {
     /// [`RenderError::Input`] when the shapes do not fit, there are not 3 channels or `b` is
     /// out of range.
     pub fn from_gaussians(gaussians: &Gaussians, b: usize) -> Result<Self, RenderError> {
-        let [batch, n, c] = gaussians.dims()?;
+        let [batch, _, c] = gaussians.dims()?;
         if c != 3 {
             return Err(RenderError::Input(format!(
                 "a PLY file stores RGB colours, the Gaussians have {c} feature channels"
@@ -207,16 +208,11 @@ impl GaussianCloud {
             )));
         }
         let host = |t: &Tensor<3>| -> Result<Vec<f32>, RenderError> {
-            let [_, _, k] = t.dims();
             t.clone()
                 .narrow(0, b, 1)
                 .into_data()
                 .convert::<f32>()
                 .try_to_vec::<f32>()
-                .map(|v| {
-                    debug_assert_eq!(v.len(), n * k);
-                    v
-                })
                 .map_err(|e| RenderError::Input(format!("reading Gaussians: {e:?}")))
         };
         let arrays3 = |v: Vec<f32>| -> Vec<[f32; 3]> {
@@ -310,7 +306,9 @@ impl GaussianCloud {
                 .copied()
                 .ok_or_else(|| bad(format!("missing vertex property `{name}`")))
         };
-        let rest_count = (0..).take_while(|k| offsets.contains_key(format!("f_rest_{k}").as_str())).count();
+        let rest_count = (0..)
+            .take_while(|k| offsets.contains_key(format!("f_rest_{k}").as_str()))
+            .count();
         let sh_degree = (0..=3)
             .find(|d| 3 * sh_rest_per_channel(*d) == rest_count)
             .ok_or_else(|| {
@@ -378,15 +376,19 @@ impl GaussianCloud {
     pub fn to_bytes(&self) -> Result<Vec<u8>, String> {
         self.check()?;
         let rest = 3 * sh_rest_per_channel(self.sh_degree);
-        let mut names: Vec<String> = ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
-            .iter()
-            .map(|s| s.to_string())
-            .collect();
+        let mut names: Vec<String> = [
+            "x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
         names.extend((0..rest).map(|k| format!("f_rest_{k}")));
         names.extend(
-            ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
-                .iter()
-                .map(|s| s.to_string()),
+            [
+                "opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3",
+            ]
+            .iter()
+            .map(|s| s.to_string()),
         );
         let mut out = Vec::with_capacity(256 + self.len() * names.len() * 4);
         write!(

@@ -124,14 +124,14 @@ pub fn render(gaussians: &Gaussians, cameras: &[Camera]) -> Result<Rendered, Ren
         features: gaussians.features.clone().into_dispatch(),
     };
     let cameras = SplatCameras(Arc::from(cameras));
-    let out = Tensor::<4>::from_dispatch(<Dispatch as SplatBackend>::splat_rasterize(
-        inputs, cameras,
-    ));
+    let out =
+        Tensor::<4>::from_dispatch(<Dispatch as SplatBackend>::splat_rasterize(inputs, cameras));
     let features = out.clone().narrow(1, 0, c);
     let alpha = out.clone().narrow(1, c, 1);
     let accumulated_depth = out.narrow(1, c + 1, 1);
     let empty = alpha.clone().lower_elem(DEPTH_ALPHA_EPS);
-    let depth = (accumulated_depth / alpha.clone().clamp_min(DEPTH_ALPHA_EPS)).mask_fill(empty, 0.0);
+    let depth =
+        (accumulated_depth / alpha.clone().clamp_min(DEPTH_ALPHA_EPS)).mask_fill(empty, 0.0);
     Ok(Rendered {
         features,
         alpha,

@@ -14,12 +14,15 @@ use crate::files::write_atomically;
 /// Parses a background colour `R,G,B` with components in [0, 1].
 ///
 /// # Errors
-/// [`RenderError::Input`] naming the bad component.
+/// [`RenderError::Value`] naming the bad component.
 pub fn parse_background(text: &str) -> Result<[f32; 3], RenderError> {
-    let bad = |m: String| RenderError::Input(format!("background `{text}`: {m}"));
+    let bad = |m: String| RenderError::Value(format!("background `{text}`: {m}"));
     let parts: Vec<&str> = text.split(',').map(str::trim).collect();
     if parts.len() != 3 {
-        return Err(bad(format!("expected R,G,B, got {} components", parts.len())));
+        return Err(bad(format!(
+            "expected R,G,B, got {} components",
+            parts.len()
+        )));
     }
     let mut out = [0.0; 3];
     for (o, p) in out.iter_mut().zip(&parts) {
@@ -69,7 +72,10 @@ pub fn render_cloud(
 pub fn save_png(image: &RgbImage, path: &Path) -> Result<(), RenderError> {
     let mut bytes = Vec::new();
     image
-        .write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
+        .write_to(
+            &mut std::io::Cursor::new(&mut bytes),
+            image::ImageFormat::Png,
+        )
         .map_err(|e| RenderError::io(path, std::io::Error::other(e)))?;
     write_atomically(path, &bytes)
 }

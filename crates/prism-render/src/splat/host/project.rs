@@ -141,12 +141,13 @@ fn rotation_matrix(q: [f32; 4]) -> Mat3 {
 
 fn intermediates(p: &Params, view: &View) -> Option<Intermediates> {
     let cam = view.rotation * Vec3::from(p.mean) + view.translation;
-    if !(cam.z >= NEAR_PLANE) {
+    // Also rejects NaN.
+    if cam.z.is_nan() || cam.z < NEAR_PLANE {
         return None;
     }
     let [w, x, y, z] = p.rotation;
     let quat_norm = (w * w + x * x + y * y + z * z).sqrt();
-    if !(quat_norm > 1e-12) {
+    if quat_norm.is_nan() || quat_norm <= 1e-12 {
         return None;
     }
     let quat = [w / quat_norm, x / quat_norm, y / quat_norm, z / quat_norm];
@@ -180,7 +181,7 @@ fn intermediates(p: &Params, view: &View) -> Option<Intermediates> {
         m[1].dot(s1) + DILATION,
     ];
     let det = cov2[0] * cov2[2] - cov2[1] * cov2[1];
-    if !(det > 0.0) {
+    if det.is_nan() || det <= 0.0 {
         return None;
     }
     let conic = [cov2[2] / det, -cov2[1] / det, cov2[0] / det];
@@ -230,7 +231,12 @@ pub fn project_backward(p: &Params, view: &View, g: &ProjectedGrads) -> ParamGra
     // (the off-diagonal `b` appears twice in it, hence the half).
     let [a, b, c] = it.conic;
     let (ga, gb, gc) = (g.conic[0], 0.5 * g.conic[1], g.conic[2]);
-    let qg = [a * ga + b * gb, a * gb + b * gc, b * ga + c * gb, b * gb + c * gc];
+    let qg = [
+        a * ga + b * gb,
+        a * gb + b * gc,
+        b * ga + c * gb,
+        b * gb + c * gc,
+    ];
     let gs00 = -(qg[0] * a + qg[1] * b);
     let gs01 = -(qg[0] * b + qg[1] * c);
     let gs11 = -(qg[2] * b + qg[3] * c);
@@ -239,7 +245,8 @@ pub fn project_backward(p: &Params, view: &View, g: &ProjectedGrads) -> ParamGra
     let (m0, m1) = (it.m[0], it.m[1]);
     let s0 = it.cov3 * m0;
     let s1 = it.cov3 * m1;
-    let g_cov3 = gs00 * outer(m0, m0) + gs01 * (outer(m0, m1) + outer(m1, m0)) + gs11 * outer(m1, m1);
+    let g_cov3 =
+        gs00 * outer(m0, m0) + gs01 * (outer(m0, m1) + outer(m1, m0)) + gs11 * outer(m1, m1);
     let g_m0 = 2.0 * (gs00 * s0 + gs01 * s1);
     let g_m1 = 2.0 * (gs01 * s0 + gs11 * s1);
     // M rows are W^T j_k.
@@ -304,7 +311,8 @@ fn outer(a: Vec3, b: Vec3) -> Mat3 {
 fn quat_backward(q: [f32; 4], g: &Mat3) -> [f32; 4] {
     let [w, x, y, z] = q;
     let r = |i: usize, j: usize| g.col(j)[i];
-    let dw = 2.0 * (-z * r(0, 1) + y * r(0, 2) + z * r(1, 0) - x * r(1, 2) - y * r(2, 0) + x * r(2, 1));
+    let dw =
+        2.0 * (-z * r(0, 1) + y * r(0, 2) + z * r(1, 0) - x * r(1, 2) - y * r(2, 0) + x * r(2, 1));
     let dx = 2.0
         * (y * r(0, 1) + z * r(0, 2) + y * r(1, 0) - 2.0 * x * r(1, 1) - w * r(1, 2)
             + z * r(2, 0)
@@ -422,7 +430,10 @@ mod tests {
                 };
                 let fd = ((shifted(h) - shifted(-h)) / (2.0 * h as f64)) as f32;
                 let tol = 1e-2 * fd.abs().max(an.abs()).max(1e-2 * scale);
-                assert!((fd - an).abs() < tol, "param {k}: fd {fd} analytic {an} ({w:?})");
+                assert!(
+                    (fd - an).abs() < tol,
+                    "param {k}: fd {fd} analytic {an} ({w:?})"
+                );
             }
         }
     }

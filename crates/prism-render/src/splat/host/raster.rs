@@ -116,7 +116,7 @@ fn overlap(p: &Projected, view: &View, tile: (usize, usize, usize, usize)) -> Op
 fn alpha_at(p: &Projected, dx: f32, dy: f32) -> Option<(f32, f32, f32)> {
     let [a, b, c] = p.conic;
     let power = 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy;
-    if !(power <= MAX_POWER) {
+    if power.is_nan() || power > MAX_POWER {
         return None;
     }
     let g = (-power).exp();

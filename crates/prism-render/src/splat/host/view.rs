@@ -60,8 +60,14 @@ impl View {
         let band_x = 0.3 * 0.5 * w / self.fx;
         let band_y = 0.3 * 0.5 * h / self.fy;
         [
-            [-self.cx / self.fx - band_x, (w - self.cx) / self.fx + band_x],
-            [-self.cy / self.fy - band_y, (h - self.cy) / self.fy + band_y],
+            [
+                -self.cx / self.fx - band_x,
+                (w - self.cx) / self.fx + band_x,
+            ],
+            [
+                -self.cy / self.fy - band_y,
+                (h - self.cy) / self.fy + band_y,
+            ],
         ]
     }
 }
