@@ -110,6 +110,27 @@ fn overlap(p: &Projected, view: &View, tile: (usize, usize, usize, usize)) -> Op
     (ax0 <= ax1 && ay0 <= ay1).then(|| [ax0 - x0, ay0 - y0, ax1 - x0, ay1 - y0])
 }
 
+/// The tile-local columns of `lx0..=lx1` in the row at offset `dy` from the Gaussian's centre
+/// where it may be drawn: where `power <= min(3-sigma limit, ln(255 o))` (beyond that the alpha
+/// is below 1/255), solved for `dx` and widened by a pixel, so that [`alpha_at`] still decides
+/// at the border. A pure speed-up: it only skips pixels that [`alpha_at`] rejects.
+#[inline]
+fn row_span(p: &Projected, dy: f32, x0: usize, lx0: usize, lx1: usize) -> Option<(usize, usize)> {
+    let [a, b, c] = p.conic;
+    let limit = MAX_POWER.min((p.opacity / MIN_ALPHA).ln()) + 0.01;
+    // 0.5 a dx^2 + b dy dx + 0.5 c dy^2 - limit <= 0, with a > 0.
+    let disc = (b * b - a * c) * dy * dy + 2.0 * a * limit;
+    if disc.is_nan() || disc < 0.0 {
+        return None;
+    }
+    let root = disc.sqrt();
+    let lo = p.u + (-b * dy - root) / a - 0.5;
+    let hi = p.u + (-b * dy + root) / a - 0.5;
+    let first = (lo.ceil() - 1.0 - x0 as f32).max(lx0 as f32);
+    let last = (hi.floor() + 1.0 - x0 as f32).min(lx1 as f32);
+    (first <= last).then_some((first as usize, last as usize))
+}
+
 /// The Gaussian's alpha at offset `(dx, dy)` from its centre, with `exp(-power)` and the
 /// unclamped `o exp(-power)`; `None` where it is skipped (outside 3 sigma, below 1/255).
 #[inline]
@@ -177,7 +198,10 @@ pub fn composite(
                 let f = &features[j * channels..(j + 1) * channels];
                 for ly in ly0..=ly1 {
                     let dy = (y0 + ly) as f32 + 0.5 - p.v;
-                    for lx in lx0..=lx1 {
+                    let Some((sx0, sx1)) = row_span(p, dy, x0, lx0, lx1) else {
+                        continue;
+                    };
+                    for lx in sx0..=sx1 {
                         let idx = ly * tw + lx;
                         if done[idx] {
                             continue;
@@ -290,7 +314,10 @@ pub fn composite_backward(
                 let [a, b, c] = p.conic;
                 for ly in ly0..=ly1 {
                     let dy = (y0 + ly) as f32 + 0.5 - p.v;
-                    for lx in lx0..=lx1 {
+                    let Some((sx0, sx1)) = row_span(p, dy, x0, lx0, lx1) else {
+                        continue;
+                    };
+                    for lx in sx0..=sx1 {
                         let idx = ly * tw + lx;
                         if k as u32 >= n[idx] {
                             continue;
@@ -343,4 +370,51 @@ pub fn composite_backward(
         }
     }
     grads
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `row_span` never drops a pixel that `alpha_at` would draw.
+    #[test]
+    fn row_spans_contain_every_drawn_pixel() {
+        let mut state = 12345u64;
+        let mut rand = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let mut drawn = 0;
+        for _ in 0..300 {
+            // A random positive-definite 2D covariance (with the dilation) and opacity.
+            let (sx, sy, t) = (0.2 + 6.0 * rand(), 0.2 + 6.0 * rand(), 6.3 * rand());
+            let (cs, sn) = (t.cos(), t.sin());
+            let cov = [
+                cs * cs * sx * sx + sn * sn * sy * sy + 0.3,
+                cs * sn * (sx * sx - sy * sy),
+                sn * sn * sx * sx + cs * cs * sy * sy + 0.3,
+            ];
+            let det = cov[0] * cov[2] - cov[1] * cov[1];
+            let p = Projected {
+                u: 20.0 + 10.0 * rand(),
+                v: 0.0,
+                depth: 1.0,
+                conic: [cov[2] / det, -cov[1] / det, cov[0] / det],
+                opacity: 0.003 + rand(),
+                extent: [0.0; 2],
+            };
+            for row in -25..=25 {
+                let dy = row as f32 + 0.5 * rand();
+                let span = row_span(&p, dy, 0, 0, 63);
+                for x in 0..64usize {
+                    if alpha_at(&p, x as f32 + 0.5 - p.u, dy).is_some() {
+                        drawn += 1;
+                        let (a, b) = span.expect("a drawn pixel in a rejected row");
+                        assert!(a <= x && x <= b, "{x} outside {a}..={b}");
+                    }
+                }
+            }
+        }
+        assert!(drawn > 10_000, "{drawn}");
+    }
 }
