@@ -100,14 +100,15 @@ pub fn forward(gaussians: &HostGaussians, cameras: &[Camera]) -> (Vec<f32>, Vec<
             .map(|i| project(&gaussians.params(b, i), &view))
             .collect();
         let lists = bin(&projected, &view);
-        let composited = composite(
+        let mut composited = composite(
             &projected,
             gaussians.features_of(b),
             gaussians.channels,
             &lists,
             &view,
         );
-        image.extend_from_slice(&composited.image);
+        // The tape keeps only what the reverse pass reads.
+        image.append(&mut composited.image);
         tapes.push(CameraTape {
             projected,
             lists,
@@ -139,7 +140,7 @@ pub fn backward(
     let stride = GRAD_HEAD + c;
     for (b, (camera, tape)) in cameras.iter().zip(tapes).enumerate() {
         let view = View::new(camera);
-        let per_image = tape.composited.image.len();
+        let per_image = (c + 2) * view.width * view.height;
         let projected_grads = composite_backward(
             &tape.projected,
             gaussians.features_of(b),

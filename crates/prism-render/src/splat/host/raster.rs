@@ -149,7 +149,8 @@ fn alpha_at(p: &Projected, dx: f32, dy: f32) -> Option<(f32, f32, f32)> {
 /// The result of compositing one camera.
 #[derive(Clone, Debug, Default)]
 pub struct Composited {
-    /// `[C + 2, H, W]`: features, alpha, accumulated depth `sum_i w_i z_i`.
+    /// `[C + 2, H, W]`: features, alpha, accumulated depth `sum_i w_i z_i` (moved out into the
+    /// output by `host::forward`; the reverse pass does not read it).
     pub image: Vec<f32>,
     /// Per pixel, the final transmittance.
     pub transmittance: Vec<f32>,
