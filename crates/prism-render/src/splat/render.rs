@@ -99,6 +99,9 @@ const DEPTH_ALPHA_EPS: f32 = 1e-6;
 /// cameras do not share one non-empty image size.
 pub fn render(gaussians: &Gaussians, cameras: &[Camera]) -> Result<Rendered, RenderError> {
     let [b, _, c] = gaussians.dims()?;
+    if b == 0 {
+        return Err(RenderError::Input("empty batch".into()));
+    }
     if cameras.len() != b {
         return Err(RenderError::Input(format!(
             "{} cameras for a batch of {b}",
