@@ -123,7 +123,13 @@ fn main() {
         o.backend,
         rayon::current_num_threads()
     );
-    println!("forward (inference device): {:8.1} ms", 1e3 * median(forward));
-    println!("forward (autodiff device):  {:8.1} ms", 1e3 * median(fwd_ad));
+    println!(
+        "forward (inference device): {:8.1} ms",
+        1e3 * median(forward)
+    );
+    println!(
+        "forward (autodiff device):  {:8.1} ms",
+        1e3 * median(fwd_ad)
+    );
     println!("backward:                   {:8.1} ms", 1e3 * median(bwd));
 }
