@@ -1,6 +1,6 @@
 //! Differentiable 3D Gaussian splatting (Kerbl et al. 2023) on Burn tensors.
 //!
-//! - [`render`] draws `B x N` [`Gaussians`] into `B` cameras and returns [`Rendered`] features,
+//! - [`render()`] draws `B x N` [`Gaussians`] into `B` cameras and returns [`Rendered`] features,
 //!   alpha and depth; on an autodiff device it is differentiable with respect to every Gaussian
 //!   parameter (a custom backward pass, see [`op`]).
 //! - [`ply`] reads and writes the standard 3DGS PLY layout ([`GaussianCloud`]);

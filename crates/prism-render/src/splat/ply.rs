@@ -174,7 +174,7 @@ impl GaussianCloud {
         Ok(())
     }
 
-    /// The cloud as a batch of one for [`super::render`], with the degree-0 colours as the
+    /// The cloud as a batch of one for [`super::render()`], with the degree-0 colours as the
     /// three feature channels.
     pub fn to_gaussians(&self, device: &Device) -> Gaussians {
         let n = self.len();
