@@ -144,6 +144,16 @@ fn written_dataset_checks_clean_and_loads_into_batches() {
         assert_eq!(has_point, mask[i] > 0.5);
     }
 
+    // Loading on worker threads through Burn's data loader.
+    let loader = burn::data::dataloader::DataLoaderBuilder::new(PrismBatcher)
+        .batch_size(2)
+        .num_workers(2)
+        .set_device(device.clone())
+        .build(train.clone());
+    let batches: Vec<_> = loader.iter().collect::<Result<_, _>>().unwrap();
+    assert_eq!(batches.len(), 4);
+    assert!(batches.iter().all(|b| b.target_image.dims() == [6, 3, 16, 16]));
+
     // Evaluation: every view 1..=100 of the held-out subject, in order.
     let eval = SampleDataset::new(
         reader,
