@@ -27,6 +27,9 @@ enum Command {
     Bench(commands::bench::BenchArgs),
     /// PSNR, SSIM and LPIPS of images (or folders of images) against ground truth.
     Metrics(commands::metrics::MetricsArgs),
+    /// 3D Gaussian splatting: render standard 3DGS PLY files.
+    #[command(subcommand)]
+    Splat(commands::splat::SplatCommand),
 }
 
 fn main() {
@@ -37,6 +40,7 @@ fn main() {
         Command::Info(args) => args.run(),
         Command::Bench(args) => args.run(),
         Command::Metrics(args) => args.run(),
+        Command::Splat(cmd) => cmd.run(),
     };
     if let Err(err) = result {
         eprintln!("error: {err:#}");

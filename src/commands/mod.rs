@@ -6,3 +6,4 @@ pub mod body;
 pub mod data;
 pub mod info;
 pub mod metrics;
+pub mod splat;
