@@ -138,7 +138,7 @@ fn render_reports_failures_checks_and_reruns() {
         let hi = ys.iter().copied().fold(f32::MIN, f32::max);
         let lo = ys.iter().copied().fold(f32::MAX, f32::min);
         // At 32 px a pixel spans about 6.6 cm on the subject.
-        assert!(lo >= -1e-4 && lo < 0.14, "{name}: {lo}");
+        assert!((-1e-4..0.14).contains(&lo), "{name}: {lo}");
         assert!(
             hi <= record.height + 1e-4 && hi > record.height - 0.14,
             "{name}: {hi}"

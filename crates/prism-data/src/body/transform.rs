@@ -80,7 +80,7 @@ impl BodyParams {
         }
         let a = Mat3::from_mat4(m);
         let s_m = a.x_axis.length();
-        if !(s_m > 0.0) {
+        if s_m <= 0.0 {
             return Err(not_similarity("zero scale"));
         }
         let q = a * (1.0 / s_m);
