@@ -30,6 +30,8 @@ enum Command {
     /// 3D Gaussian splatting: render standard 3DGS PLY files.
     #[command(subcommand)]
     Splat(commands::splat::SplatCommand),
+    /// Train the full-attention teacher (AdamW, warm-up + cosine, checkpoints, validation).
+    TrainTeacher(commands::train::TrainTeacherArgs),
 }
 
 fn main() {
@@ -41,6 +43,7 @@ fn main() {
         Command::Bench(args) => args.run(),
         Command::Metrics(args) => args.run(),
         Command::Splat(cmd) => cmd.run(),
+        Command::TrainTeacher(args) => args.run(),
     };
     if let Err(err) = result {
         eprintln!("error: {err:#}");

@@ -7,3 +7,4 @@ pub mod data;
 pub mod info;
 pub mod metrics;
 pub mod splat;
+pub mod train;

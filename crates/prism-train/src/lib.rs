@@ -1,0 +1,46 @@
+//! Training for prism: the loop shared by teacher pretraining and distillation, and the
+//! teacher's job (`prism train-teacher`).
+//!
+//! - Config: [`TrainingConfig`] composes the `[model]`, `[distill]`, `[losses]`, `[train]`
+//!   ([`TrainConfig`]) and `[data]` ([`SyntheticDataConfig`]) sections of a TOML file.
+//! - Loop: [`train`] runs a [`Task`] (its per-device [`StepLoss`] and a per-step hook) with
+//!   AdamW, the [`WarmupCosine`] schedules of the backbone and the [`HEAD_MODULES`], global-norm
+//!   clipping, a non-finite guard, data parallelism through Burn ([`DataParallel`]),
+//!   validation ([`Validator`]), `metrics.jsonl` ([`MetricsLog`]) and atomic checkpoints
+//!   ([`save_checkpoint`], [`Checkpoint`], [`load_model`]).
+//! - Data: [`DataOrder`] makes each step's samples a pure function of (seed, step), so a
+//!   resumed run continues exactly; the default synthetic dataset lives in [`cache_dir`].
+//! - Teacher: [`TeacherTask`] / [`TeacherLoss`].
+
+pub mod cache;
+pub mod checkpoint;
+pub mod clip;
+pub mod config;
+pub mod data;
+pub mod error;
+pub mod groups;
+pub mod log;
+pub mod parallel;
+pub mod schedule;
+pub mod step;
+pub mod teacher;
+pub mod trainer;
+pub mod validate;
+
+pub use cache::{CACHE_ENV, cache_dir, ensure_synthetic_dataset, synthetic_dataset_dir};
+pub use checkpoint::{
+    CHECKPOINTS_DIR, Checkpoint, CheckpointContents, CheckpointState, checkpoint_dir,
+    latest_checkpoint, list_checkpoints, load_model, save_checkpoint,
+};
+pub use clip::{clip_global_norm, global_norm, parameter_values};
+pub use config::{SyntheticDataConfig, TrainConfig, TrainingConfig, config_name, configs_dir};
+pub use data::{DataOrder, Prefetcher};
+pub use error::TrainError;
+pub use groups::{HEAD_MODULES, heads_group, heads_pattern, is_head, learning_rates};
+pub use log::{METRICS_FILE, MetricsLog, read_metrics};
+pub use parallel::{DataParallel, training_devices};
+pub use schedule::WarmupCosine;
+pub use step::{Prediction, StepLoss, StepValues, TRAINEE_FIELD, TrainItem, Trainee};
+pub use teacher::{TeacherLoss, TeacherTask};
+pub use trainer::{RUN_CONFIG_FILE, RunOptions, RunSummary, SAMPLES_DIR, Task, train};
+pub use validate::{ValidationScores, Validator, validation_views};

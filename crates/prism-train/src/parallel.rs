@@ -1,0 +1,138 @@
+//! Data parallelism with Burn's multi-device machinery.
+//!
+//! Each step's batch is split into one share per device. With one device the share runs on
+//! the calling thread; with several, Burn's [`MultiDevicesTrainStep`] (what
+//! `ExecutionStrategy::multi` runs inside burn-train's `Learner`) forks the model to every
+//! device and runs [`TrainStep::step`] there in its worker thread. The gradients are brought to
+//! the main device with [`GradientsParams::to_device`] and summed by Burn's
+//! [`GradientsAccumulator`]; since every share's loss is weighted by its fraction of the batch
+//! (see [`TrainItem::weight`]) the sum is the gradient of the whole batch's mean loss, and the
+//! optimizer steps once on the main device (burn-train's `MultiDeviceOptim::OptimMainDevice`).
+
+use burn::data::dataloader::{DataLoaderIterator, Progress};
+use burn::data::dataset::DatasetError;
+use burn::optim::{GradientsAccumulator, GradientsParams};
+use burn::tensor::Device;
+use burn::train::TrainStep;
+use burn::train::train::MultiDevicesTrainStep;
+use prism_data::BackendKind;
+
+use crate::error::{Result, TrainError};
+use crate::step::{StepValues, TrainItem, Trainee};
+
+/// The autodiff devices of a run: `count` devices of `backend`, the first one the main device.
+///
+/// The CPU backends (ndarray, flex) have a single device each; several "devices" are then
+/// the same CPU device used by several worker threads, which exercises the multi-device path
+/// (and can use idle cores) but is not faster than one device with its own threads. With the
+/// `wgpu` feature, wgpu gives the discrete GPUs `0..count` (one device: wgpu's default).
+///
+/// # Errors
+/// A backend that is not compiled in, or a count of 0.
+pub fn training_devices(backend: BackendKind, count: usize) -> Result<Vec<Device>> {
+    if count == 0 {
+        return Err(TrainError::Worker("--devices must be at least 1".into()));
+    }
+    #[cfg(feature = "wgpu")]
+    if backend == BackendKind::Wgpu && count > 1 {
+        return Ok((0..count)
+            .map(|i| Device::wgpu(burn::tensor::DeviceKind::DiscreteGpu(i)).autodiff())
+            .collect());
+    }
+    let device = backend.autodiff_device()?;
+    Ok(vec![device; count])
+}
+
+/// Runs the forward and backward passes of a step's shares on their devices.
+pub struct DataParallel {
+    devices: Vec<Device>,
+    multi: Option<MultiDevicesTrainStep<Trainee>>,
+}
+
+impl DataParallel {
+    /// Workers for `devices` (the first is the main device).
+    ///
+    /// # Panics
+    /// If `devices` is empty.
+    pub fn new(devices: Vec<Device>) -> Self {
+        assert!(!devices.is_empty(), "at least one device");
+        let multi = (devices.len() > 1).then(|| MultiDevicesTrainStep::new(&devices));
+        Self { devices, multi }
+    }
+
+    /// The devices, main device first.
+    pub fn devices(&self) -> &[Device] {
+        &self.devices
+    }
+
+    /// The main device (where the model and the optimizer live).
+    pub fn main_device(&self) -> &Device {
+        &self.devices[0]
+    }
+
+    /// Forward and backward of `shares` (share `i` on device `i`; fewer shares than devices
+    /// leave the last devices idle). Returns the summed gradients on the main device and the
+    /// summed values of the shares.
+    ///
+    /// # Errors
+    /// [`TrainError::Worker`] when a worker panicked.
+    pub fn forward_backward(
+        &self,
+        model: &Trainee,
+        shares: Vec<TrainItem>,
+    ) -> Result<(GradientsParams, StepValues)> {
+        let Some(multi) = &self.multi else {
+            let mut grads = None;
+            let mut values = Vec::new();
+            for share in shares {
+                let out = TrainStep::step(model, share);
+                grads = Some(match grads.take() {
+                    None => out.grads,
+                    Some(g) => {
+                        let mut acc = GradientsAccumulator::new();
+                        acc.accumulate(model, g);
+                        acc.accumulate(model, out.grads);
+                        acc.grads()
+                    }
+                });
+                values.push(out.item);
+            }
+            return Ok((grads.unwrap_or_default(), StepValues::sum(&values)));
+        };
+        let mut shares = shares.into_iter();
+        let mut loaders: Vec<Box<dyn DataLoaderIterator<TrainItem>>> = (0..self.devices.len())
+            .map(|_| Box::new(OneShare(shares.next())) as Box<dyn DataLoaderIterator<TrainItem>>)
+            .collect();
+        let (outputs, _) = multi
+            .step(&mut loaders, model)
+            .map_err(|e| TrainError::Worker(e.to_string()))?;
+        let main = self.main_device();
+        let mut outputs: Vec<_> = outputs.into_iter().map(|o| o.output).collect();
+        outputs.sort_by_key(|o| o.item.share);
+        let mut accumulator = GradientsAccumulator::new();
+        let mut values = Vec::new();
+        for output in outputs {
+            accumulator.accumulate(model, output.grads.to_device(main, model));
+            values.push(output.item);
+        }
+        Ok((accumulator.grads(), StepValues::sum(&values)))
+    }
+}
+
+/// A data loader iterator over at most one share: what one worker of
+/// [`MultiDevicesTrainStep::step`] takes for one step.
+struct OneShare(Option<TrainItem>);
+
+impl Iterator for OneShare {
+    type Item = std::result::Result<TrainItem, DatasetError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        self.0.take().map(Ok)
+    }
+}
+
+impl DataLoaderIterator<TrainItem> for OneShare {
+    fn progress(&self) -> Progress {
+        Progress::new(usize::from(self.0.is_none()), 1, None)
+    }
+}

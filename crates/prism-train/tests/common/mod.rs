@@ -1,0 +1,143 @@
+//! A small analytic dataset for the training tests: a "person" made of a head sphere and a
+//! torso ellipsoid, lit by a fixed light, with a per-subject albedo, ray cast here
+//! (independently of the project's renderer) in the protocol's 105 views.
+
+#![allow(dead_code)]
+
+use std::path::Path;
+
+use glam::Vec3;
+use image::{Luma, Rgb, Rgb32FImage};
+use prism_data::dataset::{
+    CameraRecord, DatasetMeta, DatasetWriter, Mask, PointMap, Split, SubjectRecord,
+};
+use prism_data::{Camera, Intrinsics, ViewingProtocol};
+use prism_train::{TrainingConfig, configs_dir};
+
+struct Blob {
+    centre: Vec3,
+    radii: Vec3,
+}
+
+/// The nearest hit of the ray through pixel (x, y) with the subject's blobs: (point, normal).
+fn hit(blobs: &[Blob], camera: &Camera, x: u32, y: u32) -> Option<(Vec3, Vec3)> {
+    let o = camera.center();
+    let d = camera.ray_direction(x as f32 + 0.5, y as f32 + 0.5);
+    let mut best: Option<(f32, Vec3, Vec3)> = None;
+    for b in blobs {
+        // Scale space so the ellipsoid is a unit sphere.
+        let oc = (o - b.centre) / b.radii;
+        let dd = d / b.radii;
+        let a = dd.dot(dd);
+        let bq = oc.dot(dd);
+        let c = oc.dot(oc) - 1.0;
+        let disc = bq * bq - a * c;
+        if disc < 0.0 {
+            continue;
+        }
+        let t = (-bq - disc.sqrt()) / a;
+        if t > 0.0 && best.is_none_or(|(bt, _, _)| t < bt) {
+            let p = o + d * t;
+            let n = ((p - b.centre) / (b.radii * b.radii)).normalize();
+            best = Some((t, p, n));
+        }
+    }
+    best.map(|(_, p, n)| (p, n))
+}
+
+/// Writes `subjects` subjects (the last one held out) at `res` x `res` into `root`.
+pub fn write_dataset(root: &Path, subjects: usize, res: u32) {
+    write_dataset_at_depth(root, subjects, res, 0.0);
+}
+
+/// As [`write_dataset`], with the subjects `depth` metres along +z from the cameras' orbit
+/// centre: off the centre, a subject shifts across the image from view to view (parallax), so
+/// copying the source view is a poor prediction and the views must be synthesised.
+pub fn write_dataset_at_depth(root: &Path, subjects: usize, res: u32, depth: f32) {
+    let protocol = ViewingProtocol::default();
+    let names: Vec<String> = (0..subjects).map(|i| format!("s{i}")).collect();
+    let meta = DatasetMeta {
+        format: "prism-dataset".into(),
+        version: 1,
+        width: res,
+        height: res,
+        background: [1.0, 1.0, 1.0],
+        views: 105,
+        subjects: names.clone(),
+        split: Split {
+            train: names[..subjects - 1].to_vec(),
+            test: names[subjects - 1..].to_vec(),
+        },
+        generator: serde_json::json!({"kind": "blob-test", "res": res, "depth": depth}),
+    };
+    let writer = DatasetWriter::open(root, meta).unwrap();
+    let light = Vec3::new(0.5, 0.8, 0.6).normalize();
+    for (s, name) in names.iter().enumerate() {
+        if writer.is_done(name) {
+            continue;
+        }
+        let f = s as f32 / subjects as f32;
+        let blobs = [
+            Blob {
+                centre: Vec3::new(0.0, 1.55 + 0.05 * f, depth),
+                radii: Vec3::splat(0.13),
+            },
+            Blob {
+                centre: Vec3::new(0.0, 1.0, depth),
+                radii: Vec3::new(0.28 + 0.06 * f, 0.45, 0.16),
+            },
+        ];
+        let albedo = Vec3::new(0.9 - 0.5 * f, 0.4 + 0.4 * f, 0.3);
+        let w = writer.begin_subject(name).unwrap();
+        let mut records = Vec::new();
+        let mut points = None;
+        for view in protocol.views(s as u64) {
+            let cam = protocol.camera(&view, Intrinsics::protocol_default(res, res));
+            let rgb = Rgb32FImage::from_fn(res, res, |x, y| match hit(&blobs, &cam, x, y) {
+                Some((p, n)) => {
+                    let shade = 0.3 + 0.7 * n.dot(light).max(0.0);
+                    // A stripe pattern on the torso front so views differ in detail.
+                    let stripe = if p.z > 0.0 && ((p.y * 12.0).floor() as i32) % 2 == 0 {
+                        0.6
+                    } else {
+                        1.0
+                    };
+                    let c = albedo * shade * stripe;
+                    Rgb([c.x, c.y, c.z])
+                }
+                None => Rgb([1.0, 1.0, 1.0]),
+            });
+            let mask = Mask::from_fn(res, res, |x, y| {
+                Luma([hit(&blobs, &cam, x, y).map_or(0.0, |_| 1.0)])
+            });
+            w.write_view(view.index, &rgb, &mask).unwrap();
+            if view.index == 0 {
+                points = Some(PointMap {
+                    width: res,
+                    height: res,
+                    points: (0..res * res)
+                        .map(|i| {
+                            hit(&blobs, &cam, i % res, i / res)
+                                .map_or([0.0; 3], |(p, _)| p.to_array())
+                        })
+                        .collect(),
+                });
+            }
+            records.push(CameraRecord::new(&view, &cam));
+        }
+        let record = SubjectRecord {
+            source: "blob".into(),
+            mesh_to_world: glam::Mat4::IDENTITY.to_cols_array_2d(),
+            height: 1.7,
+        };
+        w.finish::<serde_json::Value>(&records, &points.unwrap(), &record, None)
+            .unwrap();
+    }
+}
+
+/// The tiny config, with changes applied to its `[train]` section.
+pub fn tiny(edit: impl FnOnce(&mut TrainingConfig)) -> TrainingConfig {
+    let mut config = TrainingConfig::load(configs_dir().join("tiny.toml")).unwrap();
+    edit(&mut config);
+    config
+}

@@ -1,0 +1,236 @@
+//! End-to-end tests of `prism train-teacher` through the built binary (ndarray backend), on the
+//! tiny config and a tiny synthetic dataset in a private cache folder.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+use prism_data::BackendKind;
+use prism_train::{
+    Checkpoint, TrainingConfig, configs_dir, ensure_synthetic_dataset, list_checkpoints,
+    parameter_values, read_metrics,
+};
+
+/// A scratch folder for one test, removed first.
+fn scratch(test: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("prism-train-cli-{}-{test}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// The cache folder of this test process, holding the tiny synthetic dataset (synthesised once,
+/// before any child process needs it).
+fn cache() -> PathBuf {
+    static CACHE: OnceLock<PathBuf> = OnceLock::new();
+    CACHE
+        .get_or_init(|| {
+            let dir = scratch("cache");
+            // SAFETY: set once, before any child process is spawned or the variable is read.
+            unsafe { std::env::set_var(prism_train::CACHE_ENV, &dir) };
+            ensure_synthetic_dataset(&tiny_config(40, 5).data, false).unwrap();
+            dir
+        })
+        .clone()
+}
+
+/// configs/tiny.toml at 32 px without LPIPS in the loss (LPIPS backward is slow on ndarray;
+/// validation still reports it), on 4 synthetic subjects of 32 px.
+fn tiny_config(steps: usize, checkpoint_every: usize) -> TrainingConfig {
+    let mut c = TrainingConfig::load(configs_dir().join("tiny.toml")).unwrap();
+    c.model.resolution = 32;
+    c.losses.lpips = 0.0;
+    c.train.steps = steps;
+    c.train.checkpoint_every = checkpoint_every;
+    c.train.keep_checkpoints = 3;
+    c.train.validate_every = 0;
+    c.train.validation_views = 2;
+    c.data.subjects = 4;
+    c.data.resolution = 32;
+    c.data.test_fraction = 0.25;
+    c
+}
+
+fn write_config(dir: &Path, config: &TrainingConfig) -> PathBuf {
+    let path = dir.join("test.toml");
+    std::fs::write(&path, config.to_toml()).unwrap();
+    path
+}
+
+fn prism(config: &Path, out: &Path, extra: &[&str]) -> Command {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_prism"));
+    cmd.arg("train-teacher")
+        .arg("--config")
+        .arg(config)
+        .arg("--out")
+        .arg(out)
+        .args(["--backend", "ndarray", "--quiet"])
+        .args(extra)
+        .env(prism_train::CACHE_ENV, cache())
+        .env_remove("PRISM_LPIPS_WEIGHTS");
+    cmd
+}
+
+fn run(mut cmd: Command) -> Output {
+    let out = cmd.output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+fn weights(dir: &Path) -> Vec<Vec<f32>> {
+    let device = BackendKind::Ndarray.device().unwrap();
+    parameter_values(&Checkpoint::read(dir).unwrap().load_model(&device).unwrap())
+}
+
+#[test]
+fn a_killed_run_leaves_a_loadable_checkpoint_and_resumes_exactly() {
+    let dir = scratch("kill");
+    let config = write_config(&dir, &tiny_config(60, 5));
+    let killed = dir.join("killed");
+    let mut child = prism(&config, &killed, &[])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    // Kill it (SIGKILL) once its second checkpoint is there, mid-run.
+    let began = Instant::now();
+    while list_checkpoints(&killed).unwrap_or_default().len() < 2 {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the run ended before it could be killed"
+        );
+        assert!(began.elapsed() < Duration::from_secs(300), "no checkpoint");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let checkpoints = list_checkpoints(&killed).unwrap();
+    let (step, last) = checkpoints.last().unwrap().clone();
+    assert!(
+        (10..60).contains(&step),
+        "killed mid-run, at checkpoint {step}"
+    );
+    // The checkpoint loads, with its weights and attention kinds.
+    let checkpoint = Checkpoint::read(&last).unwrap();
+    assert_eq!(checkpoint.state.step, step);
+    let model = checkpoint
+        .load_model(&BackendKind::Ndarray.device().unwrap())
+        .unwrap();
+    assert_eq!(model.attention_kinds(), checkpoint.attention);
+
+    // Resumed, it ends where an uninterrupted run ends, bit for bit.
+    let out = run(prism(&config, &killed, &["--resume"]));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains(&format!("trained steps {step}..60")),
+        "{stdout}"
+    );
+    let straight = dir.join("straight");
+    run(prism(&config, &straight, &[]));
+    assert_eq!(weights(&killed), weights(&straight));
+    let steps: Vec<u64> = read_metrics(&killed.join("metrics.jsonl"))
+        .unwrap()
+        .iter()
+        .filter(|l| l.get("loss").is_some())
+        .map(|l| l["step"].as_u64().unwrap())
+        .collect();
+    assert_eq!(steps, (1..=60).collect::<Vec<_>>(), "each step logged once");
+}
+
+#[test]
+fn bad_input_is_one_clear_line() {
+    let dir = scratch("errors");
+    let mut broken = tiny_config(2, 1).to_toml();
+    broken = broken.replace("batch_size = 2", "batch_size = 0");
+    let config = dir.join("broken.toml");
+    std::fs::write(&config, broken).unwrap();
+    let out = prism(&config, &dir.join("run"), &[]).output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.starts_with("error:")
+            && stderr.contains("broken.toml")
+            && stderr.contains("train.batch_size"),
+        "{stderr}"
+    );
+    assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
+
+    let good = write_config(&dir, &tiny_config(2, 1));
+    let out = prism(&good, &dir.join("empty"), &["--resume"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("no checkpoint to resume"), "{stderr}");
+
+    let out = prism(&good, &dir.join("run2"), &["--init", "/nonexistent/ckpt"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("/nonexistent/ckpt"), "{stderr}");
+}
+
+/// Teacher training on the tiny synthetic people through the binary, on two (CPU) devices:
+/// the loss falls, validation improves on the initial model, and the run reports the
+/// copy-the-source baseline, its metrics and where the sample grid is.
+#[test]
+fn train_teacher_learns_on_the_synthetic_people() {
+    let dir = scratch("learn");
+    let mut config = tiny_config(150, 150);
+    config.train.lr_backbone = 3e-3;
+    config.train.lr_heads = 3e-3;
+    config.train.warmup_steps = 10;
+    let config = write_config(&dir, &config);
+    let run_dir = dir.join("run");
+    let out = run(prism(&config, &run_dir, &["--devices", "2"]));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    for expected in [
+        "copy-the-source baseline",
+        "initial model",
+        "validation at step 150",
+        "sample images",
+    ] {
+        assert!(stdout.contains(expected), "{expected}: {stdout}");
+    }
+    let lines = read_metrics(&run_dir.join("metrics.jsonl")).unwrap();
+    let losses: Vec<f64> = lines.iter().filter_map(|l| l["loss"].as_f64()).collect();
+    assert_eq!(losses.len(), 150);
+    assert!(
+        lines
+            .iter()
+            .filter(|l| l.get("loss").is_some())
+            .all(|l| l.get("nvs_mse").is_some() && l.get("lr").is_some())
+    );
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    assert!(
+        mean(&losses[130..]) < 0.5 * mean(&losses[..10]),
+        "loss did not fall"
+    );
+    let val: Vec<&serde_json::Value> = lines
+        .iter()
+        .filter(|l| l.get("val_psnr").is_some())
+        .collect();
+    assert_eq!(val.len(), 2, "initial and final validation");
+    let psnr = |l: &serde_json::Value| l["val_psnr"].as_f64().unwrap();
+    assert!(psnr(val[1]) > psnr(val[0]) + 5.0, "{val:?}");
+    let baseline = lines
+        .iter()
+        .find_map(|l| l["copy_source_psnr"].as_f64())
+        .unwrap();
+    assert!(baseline.is_finite() && baseline > 10.0, "{baseline}");
+    let grid = run_dir.join(val[1]["samples"].as_str().unwrap());
+    let image = image::open(&grid).unwrap();
+    assert_eq!(
+        (image.width(), image.height()),
+        (3 * 32, 2 * 32),
+        "2 views x (source, prediction, truth)"
+    );
+    assert_eq!(Checkpoint::read(&run_dir).unwrap().state.devices, 2);
+}
