@@ -152,7 +152,11 @@ fn written_dataset_checks_clean_and_loads_into_batches() {
         .build(train.clone());
     let batches: Vec<_> = loader.iter().collect::<Result<_, _>>().unwrap();
     assert_eq!(batches.len(), 4);
-    assert!(batches.iter().all(|b| b.target_image.dims() == [6, 3, 16, 16]));
+    assert!(
+        batches
+            .iter()
+            .all(|b| b.target_image.dims() == [6, 3, 16, 16])
+    );
 
     // Evaluation: every view 1..=100 of the held-out subject, in order.
     let eval = SampleDataset::new(
