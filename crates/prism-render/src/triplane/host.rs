@@ -31,7 +31,7 @@ impl Tap {
         let half = r as f32 * 0.5;
         let t = (c + 1.0) * half - 0.5;
         let max = (r - 1) as f32;
-        if r == 1 || !(t > 0.0) || t >= max {
+        if r == 1 || t.is_nan() || t <= 0.0 || t >= max {
             // Clamped (NaN lands here too): constant in c.
             let i = if r > 1 && t >= max { r - 1 } else { 0 };
             return Self {
