@@ -15,6 +15,57 @@ use crate::mesh::Mesh;
 use crate::protocol::{SOURCE_VIEW, ViewAngles, ViewingProtocol};
 use crate::raster::{RenderOptions, RenderOutput, render};
 
+/// The renderer of a protocol dataset: the viewing protocol, square images of one resolution
+/// and the renderer's settings, shared by every subject.
+#[derive(Clone, Debug)]
+pub struct ProtocolRenderer {
+    /// The viewing protocol (the paper's).
+    pub protocol: ViewingProtocol,
+    /// Intrinsics of every view.
+    pub intrinsics: Intrinsics,
+    /// Renderer settings.
+    pub options: RenderOptions,
+}
+
+impl ProtocolRenderer {
+    /// The paper's protocol at `resolution` x `resolution` px, composited on `background`, with
+    /// `supersample` x `supersample` samples per pixel.
+    pub fn new(resolution: u32, background: [f32; 3], supersample: u32) -> Self {
+        Self {
+            protocol: ViewingProtocol::default(),
+            intrinsics: Intrinsics::protocol_default(resolution, resolution),
+            options: RenderOptions {
+                supersample,
+                background,
+                ..Default::default()
+            },
+        }
+    }
+
+    /// Renders the protocol's views drawn from `seed` of `mesh` (already placed in the world)
+    /// and writes subject `name` (see [`SubjectRender::write`]).
+    #[allow(clippy::too_many_arguments)]
+    pub fn write<B: Serialize + Sync>(
+        &self,
+        writer: &DatasetWriter,
+        name: &str,
+        seed: u64,
+        mesh: &Mesh,
+        record: &SubjectRecord,
+        body: Option<&B>,
+        on_view: &(dyn Fn() + Sync),
+    ) -> Result<()> {
+        let views = self.protocol.views(seed);
+        SubjectRender {
+            protocol: &self.protocol,
+            views: &views,
+            intrinsics: self.intrinsics,
+            options: &self.options,
+        }
+        .write(writer, name, mesh, record, body, on_view)
+    }
+}
+
 /// What to render a subject with.
 #[derive(Clone, Debug)]
 pub struct SubjectRender<'a> {

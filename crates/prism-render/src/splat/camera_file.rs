@@ -7,92 +7,16 @@
 //!   "width": 512, "height": 512 }
 //! ```
 //!
-//! `c2w` is the row-major 4x4 camera-to-world matrix (OpenCV axes); `index`, `yaw_deg` and
-//! `pitch_deg` only describe the view and may be left out. Other keys are ignored.
+//! This is [`CameraRecord`]: `c2w` is the row-major 4x4 camera-to-world matrix (OpenCV axes);
+//! `index`, `yaw_deg` and `pitch_deg` only describe the view and may be left out. Other keys are
+//! ignored.
 
 use std::path::Path;
 
-use prism_data::camera::mat4_from_rows;
-use prism_data::{Camera, Intrinsics};
-use serde::Deserialize;
+use prism_data::Camera;
+use prism_data::dataset::CameraRecord;
 
 use crate::RenderError;
-
-/// The JSON record of one view.
-#[derive(Clone, Debug, Deserialize)]
-pub struct ViewRecord {
-    /// View index in its subject (informational).
-    #[serde(default)]
-    pub index: u32,
-    /// Yaw of the view in degrees (informational).
-    #[serde(default)]
-    pub yaw_deg: f32,
-    /// Pitch of the view in degrees (informational).
-    #[serde(default)]
-    pub pitch_deg: f32,
-    /// Focal length along x, pixels.
-    pub fx: f32,
-    /// Focal length along y, pixels.
-    pub fy: f32,
-    /// Principal point x, pixels.
-    pub cx: f32,
-    /// Principal point y, pixels.
-    pub cy: f32,
-    /// Row-major camera-to-world matrix.
-    pub c2w: [[f32; 4]; 4],
-    /// Image width, pixels.
-    pub width: u32,
-    /// Image height, pixels.
-    pub height: u32,
-}
-
-impl ViewRecord {
-    /// The camera, after checking the values.
-    ///
-    /// # Errors
-    /// A message naming the bad value.
-    pub fn camera(&self) -> Result<Camera, String> {
-        if self.width == 0 || self.height == 0 {
-            return Err(format!("empty image size {}x{}", self.width, self.height));
-        }
-        for (name, v) in [("fx", self.fx), ("fy", self.fy)] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(format!("{name} = {v} is not a positive focal length"));
-            }
-        }
-        for (name, v) in [("cx", self.cx), ("cy", self.cy)] {
-            if !v.is_finite() {
-                return Err(format!("{name} = {v} is not finite"));
-            }
-        }
-        if self.c2w.iter().flatten().any(|v| !v.is_finite()) {
-            return Err("c2w has a non-finite entry".into());
-        }
-        let c2w = mat4_from_rows(&self.c2w);
-        let r = glam::Mat3::from_mat4(c2w);
-        let orthonormal = (r.transpose() * r - glam::Mat3::IDENTITY)
-            .to_cols_array()
-            .iter()
-            .all(|v| v.abs() < 1e-3);
-        if !orthonormal
-            || (r.determinant() - 1.0).abs() > 1e-3
-            || self.c2w[3] != [0.0, 0.0, 0.0, 1.0]
-        {
-            return Err("c2w is not a rigid camera-to-world transform".into());
-        }
-        Ok(Camera::new(
-            Intrinsics {
-                fx: self.fx,
-                fy: self.fy,
-                cx: self.cx,
-                cy: self.cy,
-                width: self.width,
-                height: self.height,
-            },
-            c2w,
-        ))
-    }
-}
 
 /// Reads one camera view from a JSON file.
 ///
@@ -101,14 +25,18 @@ impl ViewRecord {
 pub fn read_camera(path: impl AsRef<Path>) -> Result<Camera, RenderError> {
     let path = path.as_ref();
     let text = std::fs::read_to_string(path).map_err(|e| RenderError::io(path, e))?;
-    let record: ViewRecord = serde_json::from_str(&text)
+    let record: CameraRecord = serde_json::from_str(&text)
         .map_err(|e| RenderError::format(path, format!("not a camera view: {e}")))?;
-    record.camera().map_err(|m| RenderError::format(path, m))
+    record
+        .validate()
+        .map_err(|m| RenderError::format(path, m))?;
+    Ok(record.camera())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use prism_data::Intrinsics;
     use prism_data::camera::mat4_to_rows;
 
     #[test]
@@ -126,15 +54,16 @@ mod tests {
             "fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy,
             "c2w": mat4_to_rows(&cam.c2w), "width": 32, "height": 24,
         });
-        let record: ViewRecord = serde_json::from_value(json.clone()).unwrap();
-        assert_eq!(record.camera().unwrap(), cam);
+        let record: CameraRecord = serde_json::from_value(json.clone()).unwrap();
+        record.validate().unwrap();
+        assert_eq!(record.camera(), cam);
         let mut bad = json.clone();
         bad["fx"] = (-1.0).into();
-        let record: ViewRecord = serde_json::from_value(bad).unwrap();
-        assert!(record.camera().unwrap_err().contains("fx"));
+        let record: CameraRecord = serde_json::from_value(bad).unwrap();
+        assert!(record.validate().unwrap_err().contains("fx"));
         let mut bad = json;
         bad["c2w"][0][0] = 2.0.into();
-        let record: ViewRecord = serde_json::from_value(bad).unwrap();
-        assert!(record.camera().unwrap_err().contains("rigid"));
+        let record: CameraRecord = serde_json::from_value(bad).unwrap();
+        assert!(record.validate().unwrap_err().contains("rigid"));
     }
 }
