@@ -49,13 +49,10 @@ pub fn load_body_model(spec: &str) -> Result<Arc<BodyModel>, ModelError> {
     if let Some(model) = cache.lock().expect("body model cache").get(spec) {
         return Ok(model.clone());
     }
-    let model = match parse_model_name(spec) {
-        Some(seed) => BodyModel::procedural(seed),
-        None => {
-            check_body_model(spec)?;
-            BodyModel::load_npz(spec).map_err(ModelError::Body)?
-        }
-    };
+    if !is_procedural(spec) {
+        check_body_model(spec)?;
+    }
+    let model = BodyModel::load_named(spec).map_err(ModelError::Body)?;
     let model = Arc::new(model);
     cache
         .lock()
