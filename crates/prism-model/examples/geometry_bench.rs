@@ -126,9 +126,7 @@ fn main() {
         "config {} at {res}x{res}, batch {b}, {:?}, median of {} runs",
         args.config, args.backend, args.iters
     );
-    println!(
-        "| variant | forward ms | share of forward | train step ms | share of step |"
-    );
+    println!("| variant | forward ms | share of forward | train step ms | share of step |");
     println!("|---|---|---|---|---|");
     let variants = [
         ("full model", with(&config, true, true, true)),
@@ -173,7 +171,10 @@ fn main() {
 
     // The SMPL-X branch step by step (forward, plain device).
     let model = config.init(&device);
-    let branch = model.smplx_branch.as_ref().expect("the config has the SMPL-X branch");
+    let branch = model
+        .smplx_branch
+        .as_ref()
+        .expect("the config has the SMPL-X branch");
     let x = inputs(b, res, &device);
     let tokens = Tensor::<3>::random(
         [b, (res / config.patch_size).pow(2), config.width],
@@ -194,10 +195,12 @@ fn main() {
         let _ = prism_render::mesh::rasterize(&meshes, branch.faces(), &x.views.target).unwrap();
     });
     let map = time(args.iters, || {
-        let (_, m) = branch.position_map(&world, betas.clone(), expression.clone(), &x.views.target);
+        let (_, m) =
+            branch.position_map(&world, betas.clone(), expression.clone(), &x.views.target);
         let _ = m.into_data();
     });
-    let (_, position) = branch.position_map(&world, betas.clone(), expression.clone(), &x.views.target);
+    let (_, position) =
+        branch.position_map(&world, betas.clone(), expression.clone(), &x.views.target);
     let triplane = time(args.iters, || {
         let f = sample_triplane(branch.triplane.val(), position.clone()).unwrap();
         let _ = f.into_data();
@@ -215,13 +218,19 @@ fn main() {
     println!("|---|---|");
     println!("| adapter + regressor | {regress:.2} |");
     println!("| pose the body (BodyLayer) + place it (host) | {pose:.2} |");
-    println!("| rasterize {} triangles into {b} views | {raster:.2} |", branch.faces().len());
+    println!(
+        "| rasterize {} triangles into {b} views | {raster:.2} |",
+        branch.faces().len()
+    );
     println!("| position map (rasterize + gather) | {map:.2} |");
     println!("| triplane sampling forward | {triplane:.2} |");
     println!("| triplane sampling forward + backward | {triplane_step:.2} |");
 
     // The point branch and the 3DGS head step by step (forward, plain device).
-    let points = model.point_branch.as_ref().expect("the config has the point branch");
+    let points = model
+        .point_branch
+        .as_ref()
+        .expect("the config has the point branch");
     let grid = (res / config.patch_size, res / config.patch_size);
     let taps: Vec<Tensor<3>> = points.taps().iter().map(|_| tokens.clone()).collect();
     let dpt = time(args.iters, || {
@@ -236,7 +245,10 @@ fn main() {
         let r = prism_render::splat::render(&out.gaussians, &x.views.target).unwrap();
         let _ = r.features.into_data();
     });
-    let head = model.gs_head.as_ref().expect("the config has the 3DGS head");
+    let head = model
+        .gs_head
+        .as_ref()
+        .expect("the config has the 3DGS head");
     let gs = time(args.iters, || {
         let out = head.forward(tokens.clone(), &x.source, &x.views, res, res);
         let _ = out.image.into_data();
@@ -246,7 +258,10 @@ fn main() {
     println!("| step | ms |");
     println!("|---|---|");
     println!("| point branch: DPT head | {dpt:.2} |");
-    println!("| point branch: splat {} points per view | {splat:.2} |", res * res);
+    println!(
+        "| point branch: splat {} points per view | {splat:.2} |",
+        res * res
+    );
     println!("| point branch: whole | {whole:.2} |");
     println!("| 3DGS head: whole (projection, activations, splat) | {gs:.2} |");
 }

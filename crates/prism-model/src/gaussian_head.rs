@@ -178,3 +178,126 @@ impl GaussianHead {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::test_util::{ndarray, values, views};
+    use burn::tensor::Distribution;
+    use prism_data::rays::plucker_rays;
+
+    fn head(device: &Device) -> GaussianHead {
+        GaussianHeadConfig::new(16, 8, 2.0).init(device)
+    }
+
+    #[test]
+    fn gaussians_sit_on_the_source_rays_and_render_over_the_background() {
+        let device = ndarray();
+        device.seed(3);
+        let head = head(&device);
+        let mut views = views(2, 16, 24);
+        views.background = [0.2, 0.4, 0.9];
+        // Pair 1 looks away from the subject: nothing is drawn, I_gs is the background.
+        let centre = views.target[1].center();
+        views.target[1] = prism_data::Camera::look_at(
+            centre,
+            centre * 2.0,
+            glam::Vec3::Y,
+            views.target[1].intrinsics,
+        );
+        let rays = plucker_rays(&views.source, &device);
+        let tokens = Tensor::<3>::random([2, 6, 16], Distribution::Normal(0.0, 1.0), &device);
+        let out = head.forward(tokens, &rays, &views, 16, 24);
+        assert_eq!(out.image.dims(), [2, 3, 16, 24]);
+        assert_eq!(out.alpha.dims(), [2, 1, 16, 24]);
+        assert_eq!(out.gaussians.means.dims(), [2, 16 * 24, 3]);
+        assert_eq!(out.gaussians.rotations.dims(), [2, 16 * 24, 4]);
+        assert_eq!(out.gaussians.features.dims(), [2, 16 * 24, 3]);
+        // Every centre projects onto its own source pixel centre, about 2 m away.
+        let means = values(&out.gaussians.means);
+        let camera = views.source[0];
+        for (i, m) in means[..16 * 24 * 3].chunks_exact(3).enumerate() {
+            let p = glam::Vec3::from_slice(m);
+            let (u, v, _) = camera.project(p);
+            let (x, y) = ((i % 24) as f32 + 0.5, (i / 24) as f32 + 0.5);
+            assert!(
+                (u - x).abs() < 1e-2 && (v - y).abs() < 1e-2,
+                "{i}: ({u}, {v})"
+            );
+            let d = (p - camera.center()).length();
+            assert!((d - 2.0).abs() < 0.4, "distance {d}");
+        }
+        // Unit quaternions, colours in (0, 1), scales within the bounds around one pixel.
+        for q in values(&out.gaussians.rotations).chunks_exact(4) {
+            let n: f32 = q.iter().map(|v| v * v).sum();
+            assert!((n - 1.0).abs() < 1e-4);
+        }
+        assert!(
+            values(&out.gaussians.features)
+                .iter()
+                .all(|&c| c > 0.0 && c < 1.0)
+        );
+        let footprint = (2.0f32 / 16.0).ln();
+        for s in values(&out.gaussians.log_scales) {
+            assert!(
+                s > footprint + MIN_SCALE_PIXELS.ln() - 0.2
+                    && s < footprint + MAX_SCALE_PIXELS.ln() + 0.2
+            );
+        }
+        let image = values(&out.image);
+        let plane = 16 * 24;
+        let alpha = values(&out.alpha);
+        assert!(
+            alpha[..plane].iter().any(|&a| a > 0.5),
+            "pair 0 sees the Gaussians"
+        );
+        assert!(alpha[plane..].iter().all(|&a| a == 0.0));
+        for c in 0..3 {
+            for &v in &image[(3 + c) * plane..(4 + c) * plane] {
+                assert_eq!(v, views.background[c]);
+            }
+        }
+    }
+
+    #[test]
+    fn l_gs_trains_the_head() {
+        let device = ndarray().autodiff();
+        device.seed(4);
+        let head = head(&device);
+        let views = views(1, 16, 16);
+        let rays = plucker_rays(&views.source, &device);
+        let tokens = Tensor::<3>::random([1, 4, 16], Distribution::Normal(0.0, 1.0), &device);
+        let target = Tensor::<4>::random([1, 3, 16, 16], Distribution::Uniform(0.0, 1.0), &device);
+        let out = head.forward(tokens, &rays, &views, 16, 16);
+        let grads = (out.image - target).powi_scalar(2).mean().backward();
+        let g = values(&head.linear.weight.val().grad(&grads).unwrap());
+        assert!(g.iter().all(|v| v.is_finite()) && g.iter().any(|&v| v != 0.0));
+        let g = values(&head.norm.gamma.val().grad(&grads).unwrap());
+        assert!(g.iter().any(|&v| v != 0.0));
+    }
+
+    #[test]
+    fn exported_ply_reads_back() {
+        let device = ndarray();
+        device.seed(5);
+        let head = head(&device);
+        let views = views(2, 8, 8);
+        let rays = plucker_rays(&views.source, &device);
+        let tokens = Tensor::<3>::random([2, 1, 16], Distribution::Normal(0.0, 1.0), &device);
+        let out = head.forward(tokens, &rays, &views, 8, 8);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("pair1.ply");
+        out.save_ply(1, &path).unwrap();
+        let cloud = GaussianCloud::read(&path).unwrap();
+        assert_eq!(cloud.len(), 64);
+        let means = values(&out.gaussians.means.clone().narrow(0, 1, 1));
+        for (a, b) in cloud.means.concat().iter().zip(&means) {
+            assert!((a - b).abs() < 1e-6);
+        }
+        let colours = values(&out.gaussians.features.clone().narrow(0, 1, 1));
+        for (a, b) in cloud.colours().concat().iter().zip(&colours) {
+            assert!((a - b).abs() < 1e-5);
+        }
+        assert!(out.save_ply(2, dir.path().join("none.ply")).is_err());
+    }
+}

@@ -175,3 +175,55 @@ impl PointBranch {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::test_util::{ndarray, values, views};
+    use burn::tensor::Distribution;
+    use prism_data::rays::plucker_rays;
+
+    #[test]
+    fn points_lie_on_their_rays_and_the_head_trains() {
+        let device = ndarray().autodiff();
+        device.seed(7);
+        let branch = PointBranchConfig::new(16, vec![0, 1], 8, 8, 4, 2.0).init(&device);
+        let views = views(2, 16, 16);
+        let rays = plucker_rays(&views.source, &device);
+        let taps: Vec<Tensor<3>> = (0..2)
+            .map(|_| Tensor::random([2, 4, 16], Distribution::Normal(0.0, 1.0), &device))
+            .collect();
+        let out = branch.forward(&taps, &rays, &views, (2, 2), 16, 16);
+        assert_eq!(out.points.dims(), [2, 3, 16, 16]);
+        assert_eq!(out.confidence.dims(), [2, 1, 16, 16]);
+        assert_eq!(out.features.dims(), [2, 4 + 2, 16, 16]);
+        let points = values(&out.points);
+        let camera = views.source[0];
+        let plane = 256;
+        for i in 0..plane {
+            let p = glam::Vec3::new(points[i], points[plane + i], points[2 * plane + i]);
+            let (u, v, _) = camera.project(p);
+            assert!((u - ((i % 16) as f32 + 0.5)).abs() < 1e-2);
+            assert!((v - ((i / 16) as f32 + 0.5)).abs() < 1e-2);
+            assert!(((p - camera.center()).length() - 2.0).abs() < 0.4);
+        }
+        // The splatted points cover part of the target views.
+        let coverage = values(&out.features.clone().narrow(1, 4, 1));
+        assert!(coverage.iter().any(|&a| a > 0.5));
+        // A loss on the points and on F_pts reaches the DPT head.
+        let loss = out.points.mean() + out.confidence.mean() + out.features.powi_scalar(2).mean();
+        let grads = loss.backward();
+        let refine = branch.dpt.refine[0].weight.val().grad(&grads).unwrap();
+        assert!(values(&refine).iter().any(|&v| v != 0.0), "refine");
+        for (name, g) in [
+            (
+                "reassemble",
+                branch.dpt.reassemble[0].weight.val().grad(&grads),
+            ),
+            ("head_out", branch.dpt.head_out.weight.val().grad(&grads)),
+        ] {
+            let g = values(&g.unwrap_or_else(|| panic!("{name}: no gradient")));
+            assert!(g.iter().any(|&v| v != 0.0), "{name}");
+        }
+    }
+}
