@@ -3,6 +3,7 @@
 
 use burn::module::Module;
 use burn::tensor::{Device, Tensor};
+use prism_data::dataset::PrismBatch;
 
 use crate::attention::AttentionKind;
 use crate::block::{PrismBlock, PrismBlockConfig};
@@ -277,6 +278,23 @@ impl Prism {
             source_rays,
             target_rays,
             Some(views),
+            hidden_layers,
+        )
+    }
+
+    /// [`Prism::forward_views`] on a dataset batch: its source images and rays, target rays and
+    /// cameras, with the dataset's `background`.
+    pub fn forward_batch(
+        &self,
+        batch: &PrismBatch,
+        background: [f32; 3],
+        hidden_layers: &[usize],
+    ) -> PrismOutput {
+        self.forward_views(
+            batch.source_image.clone(),
+            batch.source_rays.clone(),
+            batch.target_rays.clone(),
+            &Views::of_batch(batch, background),
             hidden_layers,
         )
     }

@@ -4,6 +4,7 @@
 
 use burn::tensor::{Device, Tensor, TensorData};
 use prism_data::Camera;
+use prism_data::dataset::PrismBatch;
 
 /// The cameras of `B` (source, target) pairs and the background colour that the 3DGS head
 /// composites over (the dataset's, `dataset.json`).
@@ -28,6 +29,16 @@ impl Views {
             target,
             background,
         }
+    }
+
+    /// The views of a batch: its source and target cameras, with the dataset's background
+    /// (`DatasetMeta::background`).
+    pub fn of_batch(batch: &PrismBatch, background: [f32; 3]) -> Self {
+        Self::new(
+            batch.source_cameras.clone(),
+            batch.target_cameras.clone(),
+            background,
+        )
     }
 
     /// Number of pairs.
