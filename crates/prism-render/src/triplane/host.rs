@@ -120,18 +120,14 @@ pub fn forward(planes_last: &[f32], coords: &[f32], dims: Dims) -> Vec<f32> {
                         let start = (p * r * r + row * r + col) * c;
                         &planes_last[start..start + c]
                     };
-                    let corners = [
-                        (texel(v.i0, u.i0), (1.0 - v.frac) * (1.0 - u.frac)),
-                        (texel(v.i0, u.i1), (1.0 - v.frac) * u.frac),
-                        (texel(v.i1, u.i0), v.frac * (1.0 - u.frac)),
-                        (texel(v.i1, u.i1), v.frac * u.frac),
-                    ];
-                    for (t, w) in corners {
-                        if w != 0.0 {
-                            for (o, x) in value.iter_mut().zip(t) {
-                                *o += w * x;
-                            }
-                        }
+                    let (t00, t01) = (texel(v.i0, u.i0), texel(v.i0, u.i1));
+                    let (t10, t11) = (texel(v.i1, u.i0), texel(v.i1, u.i1));
+                    let w00 = (1.0 - v.frac) * (1.0 - u.frac);
+                    let w01 = (1.0 - v.frac) * u.frac;
+                    let w10 = v.frac * (1.0 - u.frac);
+                    let w11 = v.frac * u.frac;
+                    for ch in 0..c {
+                        value[ch] += w00 * t00[ch] + w01 * t01[ch] + w10 * t10[ch] + w11 * t11[ch];
                     }
                 }
             }
