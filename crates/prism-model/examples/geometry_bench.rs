@@ -135,30 +135,47 @@ fn main() {
         ("without 3DGS head", with(&config, true, true, false)),
         ("plain backbone", with(&config, false, false, false)),
     ];
-    let mut full = (0.0, 0.0);
-    for (name, c) in &variants {
-        device.seed(0);
-        let model = c.init(&device);
-        let x = inputs(b, res, &device);
-        let fwd = time(args.iters, || {
-            let out = forward(&model, &x);
-            let _ = out.image.into_data();
-        });
-        let ad = device.clone().autodiff();
-        ad.seed(0);
-        let model_ad = c.init(&ad);
-        let x_ad = Inputs {
-            image: x.image.clone().to_device(&ad),
-            source: x.source.clone().to_device(&ad),
-            target: x.target.clone().to_device(&ad),
-            views: x.views.clone(),
-        };
-        let step = time(args.iters, || {
-            let out = forward(&model_ad, &x_ad);
-            let _ = loss(&out).backward();
-        });
-        if *name == "full model" {
-            full = (fwd, step);
+    // All variants are timed round-robin, so that a change of the machine's load hits them alike.
+    let ad = device.clone().autodiff();
+    let x = inputs(b, res, &device);
+    let x_ad = Inputs {
+        image: Tensor::from_data(x.image.clone().into_data(), &ad),
+        source: Tensor::from_data(x.source.clone().into_data(), &ad),
+        target: Tensor::from_data(x.target.clone().into_data(), &ad),
+        views: x.views.clone(),
+    };
+    let models: Vec<(Prism, Prism)> = variants
+        .iter()
+        .map(|(_, c)| {
+            device.seed(0);
+            ad.seed(0);
+            (c.init(&device), c.init(&ad))
+        })
+        .collect();
+    let mut forward_ms = vec![Vec::new(); variants.len()];
+    let mut step_ms = vec![Vec::new(); variants.len()];
+    for iter in 0..=args.iters {
+        for (k, (model, model_ad)) in models.iter().enumerate() {
+            let start = Instant::now();
+            let _ = forward(model, &x).image.into_data();
+            let fwd = start.elapsed().as_secs_f64() * 1e3;
+            let start = Instant::now();
+            let _ = loss(&forward(model_ad, &x_ad)).backward();
+            let step = start.elapsed().as_secs_f64() * 1e3;
+            if iter > 0 {
+                forward_ms[k].push(fwd);
+                step_ms[k].push(step);
+            }
+        }
+    }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let full = (median(&mut forward_ms[0]), median(&mut step_ms[0]));
+    for (k, (name, _)) in variants.iter().enumerate() {
+        let (fwd, step) = (median(&mut forward_ms[k]), median(&mut step_ms[k]));
+        if k == 0 {
             println!("| {name} | {fwd:.1} | | {step:.1} | |");
         } else {
             println!(
@@ -170,7 +187,7 @@ fn main() {
     }
 
     // The SMPL-X branch step by step (forward, plain device).
-    let model = config.init(&device);
+    let model = &models[0].0;
     let branch = model
         .smplx_branch
         .as_ref()
@@ -205,7 +222,6 @@ fn main() {
         let f = sample_triplane(branch.triplane.val(), position.clone()).unwrap();
         let _ = f.into_data();
     });
-    let ad = device.clone().autodiff();
     let planes = Tensor::<4>::from_data(branch.triplane.val().into_data(), &ad).require_grad();
     let coords = Tensor::<4>::from_data(position.clone().into_data(), &ad).require_grad();
     let triplane_step = time(args.iters, || {
