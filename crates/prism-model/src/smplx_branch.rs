@@ -361,8 +361,9 @@ impl SmplxBranch {
         (fragments, map)
     }
 
-    /// The whole branch (see the module docs) on the source tokens of `T_mid` `[B, T_s, d]`,
-    /// for target images of `height x width`.
+    /// The whole branch (see the module docs) on the source tokens of `T_mid` `[B, T_s, d]`
+    /// of source images of `source_size = (height, width)`, for target images of
+    /// `height x width`.
     pub fn forward(
         &self,
         source_tokens: Tensor<3>,
