@@ -169,7 +169,8 @@ pub struct Prism {
     pub stage_three: StageThree,
     /// The NVS decoder.
     pub nvs_head: NvsHead,
-    /// The 3DGS head, when enabled.
+    /// The 3DGS head, when enabled. `I_gs` is a training signal (and a PLY export): for
+    /// timing or serving the NVS output alone, set this to `None` and the forward pass skips it.
     pub gs_head: Option<GaussianHead>,
 }
 
