@@ -8,7 +8,9 @@ use burn::tensor::Tensor;
 pub struct SmplxParams {
     /// Shape `beta`, `[B, 10]`.
     pub beta: Tensor<2>,
-    /// Pose `theta`: 55 joints x 3 axis-angle, flattened to `[B, 165]`.
+    /// Pose `theta`, flattened per subject: 55 joints x 3 axis-angle (`[B, 165]`), or, as the
+    /// teacher's objective uses it, 55 rotation matrices (`[B, 495]`, see
+    /// `prism_model::smplx_branch`: matrices compare smoothly where axis-angle vectors jump).
     pub theta: Tensor<2>,
     /// Expression `psi`, `[B, 10]`.
     pub psi: Tensor<2>,

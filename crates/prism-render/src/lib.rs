@@ -1,5 +1,8 @@
 //! Differentiable renderers of prism on Burn tensors.
 //!
+//! - [`mesh`]: triangle rasterization of meshes for position maps (visible face and
+//!   barycentrics per pixel) and differentiable interpolation of vertex attributes;
+//! - [`triplane`]: bilinear sampling of triplane feature planes, with its own backward pass;
 //! - [`splat`]: 3D Gaussian splatting (EWA projection, tiled front-to-back compositing) with a
 //!   hand-written backward pass, the standard 3DGS PLY format and a PNG renderer for it.
 //!
@@ -9,6 +12,9 @@
 
 pub mod error;
 pub mod files;
+pub mod mesh;
 pub mod splat;
+mod transfer;
+pub mod triplane;
 
 pub use error::RenderError;

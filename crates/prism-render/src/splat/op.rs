@@ -22,10 +22,10 @@ use burn::backend::tensor::FloatTensor;
 use burn::backend::{
     Autodiff, Backend, ExtensionType, Flex, NdArray, TensorMetadata, backend_extension,
 };
-use burn::tensor::{TensorData, read_sync};
 use prism_data::Camera;
 
 use super::host::{self, CameraTape, HostGaussians};
+use crate::transfer::{to_device, to_host};
 
 /// The tensor inputs of [`SplatBackend::splat_rasterize`], as backend primitives.
 #[derive(ExtensionType)]
@@ -55,20 +55,6 @@ pub trait SplatBackend: Backend {
         #[extension_type] inputs: SplatInputs<Self>,
         cameras: SplatCameras,
     ) -> FloatTensor<Self>;
-}
-
-/// Reads a primitive to host memory as `f32`.
-fn to_host<B: Backend>(tensor: FloatTensor<B>) -> Vec<f32> {
-    read_sync(B::float_into_data(tensor))
-        .expect("splat: reading a tensor to host memory failed")
-        .convert::<f32>()
-        .try_into_vec::<f32>()
-        .expect("splat: tensor data is not f32 after conversion")
-}
-
-/// Uploads host data as a primitive of `shape` on `device`.
-fn to_device<B: Backend>(data: Vec<f32>, shape: Vec<usize>, device: &B::Device) -> FloatTensor<B> {
-    B::float_from_data(TensorData::new(data, shape), device)
 }
 
 /// The host inputs and the shapes of the original primitives.
