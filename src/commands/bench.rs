@@ -409,7 +409,7 @@ impl PrecisionBenchArgs {
             let (scores, _) = validator.validate(&model);
             let seconds = start.elapsed().as_secs_f64();
             println!(
-                "{:<10} {:>10.4} {:>8.4} {:>12.2}",
+                "{:<10} {:>10.6} {:>8.6} {:>12.2}",
                 precision.to_string(),
                 scores.psnr,
                 scores.ssim,
@@ -418,7 +418,7 @@ impl PrecisionBenchArgs {
             psnr.push(scores.psnr);
         }
         println!(
-            "PSNR change {} - f32: {:+.4} dB",
+            "PSNR change {} - f32: {:+.6} dB",
             self.precision,
             psnr[1] - psnr[0]
         );
