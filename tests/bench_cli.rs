@@ -91,13 +91,20 @@ fn bench_times_teacher_student_linear_and_the_training_step() {
         let res = row["res"].as_u64().unwrap();
         assert_eq!(row["tokens"].as_u64().unwrap(), 2 * (res / 8) * (res / 8));
         // The binary counts its heap: the CPU backend's peak is measured, never null.
-        let peak = row["peak_mem_bytes"].as_u64().expect("peak memory measured");
+        let peak = row["peak_mem_bytes"]
+            .as_u64()
+            .expect("peak memory measured");
         assert!(peak > 0, "{row}");
     }
     // The training run holds the model, its optimizer state and a batch's graph: more than
     // one inference forward pass at the same size.
     let peak = |i: usize| rows[i]["peak_mem_bytes"].as_u64().unwrap();
-    assert!(peak(6) > peak(1), "train {} vs forward {}", peak(6), peak(1));
+    assert!(
+        peak(6) > peak(1),
+        "train {} vs forward {}",
+        peak(6),
+        peak(1)
+    );
     // Bigger images need more memory for the same model.
     assert!(peak(1) > peak(0), "32 px {} vs 16 px {}", peak(1), peak(0));
     assert!(stdout.contains("train_step"), "{stdout}");
@@ -109,7 +116,13 @@ fn bench_rejects_a_resolution_that_is_not_a_multiple_of_the_patch() {
     let dir = scratch("bad-res");
     let config = tiny_config(&dir);
     let out = prism(
-        &["bench", "--config", config.to_str().unwrap(), "--res", "32,20"],
+        &[
+            "bench",
+            "--config",
+            config.to_str().unwrap(),
+            "--res",
+            "32,20",
+        ],
         &dir.join("cache"),
     );
     assert_eq!(out.status.code(), Some(1));

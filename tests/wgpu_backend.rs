@@ -23,10 +23,15 @@ use prism_train::{StepLoss, TeacherLoss, TrainingConfig, ensure_synthetic_datase
 /// The wgpu device when an adapter answers, else `None` (or a panic under CI's
 /// `PRISM_REQUIRE_WGPU=1`).
 fn wgpu_device() -> Option<Device> {
-    let device = BackendKind::Wgpu.device().expect("built with --features wgpu");
+    let device = BackendKind::Wgpu
+        .device()
+        .expect("built with --features wgpu");
     let probe = device.clone();
     let works = std::panic::catch_unwind(move || {
-        Tensor::<1>::from_floats([1.0, 2.0], &probe).sum().into_scalar::<f32>() == 3.0
+        Tensor::<1>::from_floats([1.0, 2.0], &probe)
+            .sum()
+            .into_scalar::<f32>()
+            == 3.0
     });
     match works {
         Ok(true) => Some(device),
