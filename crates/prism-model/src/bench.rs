@@ -131,3 +131,32 @@ fn median(sorted: &[f64]) -> f64 {
         0.5 * (sorted[n / 2 - 1] + sorted[n / 2])
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn student_kinds_are_the_schedule_after_its_last_switch() {
+        let count = |kinds: &[AttentionKind]| {
+            kinds
+                .iter()
+                .filter(|&&k| k == AttentionKind::Linear)
+                .count()
+        };
+        let paper = DistillConfig::new();
+        let kinds = student_kinds(&paper, 36);
+        assert_eq!(count(&kinds), 30);
+        assert_eq!(kinds, progressive_schedule(10_000_000, &paper, 36));
+        // All switches at once, and a short last group that keeps its last block Full.
+        let at_once = DistillConfig::new()
+            .with_group_size(3)
+            .with_start(0)
+            .with_interval(0);
+        let letters: String = student_kinds(&at_once, 8)
+            .iter()
+            .map(|k| k.letter())
+            .collect();
+        assert_eq!(letters, "LLFLLFLF");
+    }
+}
