@@ -11,7 +11,7 @@
 use std::path::Path;
 
 use burn::module::{Module, ModuleVisitor, Param};
-use burn::optim::{AdamWConfig, GradientsParams, Optimizer};
+use burn::optim::{AdamWConfig, GradientsParams};
 use burn::tensor::{Device, Tensor};
 use prism_data::BackendKind;
 use prism_data::dataset::{
@@ -68,7 +68,10 @@ fn parameters(model: &Prism) -> Vec<Vec<f32>> {
 }
 
 fn values<const D: usize>(t: &Tensor<D>) -> Vec<f32> {
-    t.to_data().convert::<f32>().to_vec::<f32>().expect("f32")
+    t.to_data()
+        .convert::<f32>()
+        .try_to_vec::<f32>()
+        .expect("f32")
 }
 
 /// Largest `|a - b|` relative to the largest `|b|`.
@@ -149,7 +152,8 @@ fn one_training_step_on_wgpu_matches_flex() {
     let step = |device: &Device| {
         let ad = device.clone().autodiff();
         let batch: PrismBatch = PrismBatcher.batch_samples(&samples, &ad);
-        let model = initial.clone().to_device(&ad);
+        // Moved onto the autodiff device, `train` turns the parameters' gradients on.
+        let model = initial.clone().to_device(&ad).train();
         let loss = TeacherLoss::new(&config, background, None, &ad).expect("objective");
         let terms = loss.loss(&model, &batch, 0);
         let total = values(&terms.total.clone().inner())[0];
