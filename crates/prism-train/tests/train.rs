@@ -334,11 +334,7 @@ fn checkpoints_are_pruned_and_other_configs_are_refused() {
 fn teacher_training_learns_views_that_copying_cannot_give() {
     let data = std::env::temp_dir().join(format!("prism-train-parallax-{}", std::process::id()));
     common::write_dataset_at_depth(&data, 5, 32, -0.5);
-    // The backbone and the NVS decoder: what this test is about is that the loop learns views.
     let config = tiny_config(500, |c| {
-        c.model.smplx_branch = false;
-        c.model.point_branch = false;
-        c.model.gs_head = false;
         c.train.lr_backbone = 3e-3;
         c.train.lr_heads = 3e-3;
         c.train.warmup_steps = 20;
