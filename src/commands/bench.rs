@@ -71,6 +71,9 @@ struct TableArgs {
     data: Option<PathBuf>,
     /// Also write `{"rows": [{"model", "res", "tokens", "ms", "fps", "peak_mem_bytes"}]}` to
     /// this file (the training step is the row `train_step`, `fps` its steps per second).
+    /// `peak_mem_bytes` is the peak of the timed runs: the memory pools' bytes on GPU
+    /// backends, the heap's growth above its size before the runs on the CPU ones (for the
+    /// training step, the whole short run).
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
 }
@@ -110,7 +113,8 @@ struct ModelBenchArgs {
     #[arg(long, default_value_t = 10)]
     iters: usize,
     /// Also write `{"rows": [{"model", "res", "tokens", "ms", "fps", "peak_mem_bytes"}]}` to
-    /// this file (`peak_mem_bytes` is null on the CPU backends, which do not report memory).
+    /// this file (`peak_mem_bytes`: the timed runs' peak, the memory pools' bytes on GPU
+    /// backends, the heap's growth above its size before the runs on the CPU ones).
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
 }
