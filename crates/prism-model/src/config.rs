@@ -330,10 +330,14 @@ init_std = 0.02
 norm_eps = 1e-5
 
 [distill]
+mode = "progressive"
 group_size = 3
 start = 1
 interval = 1
 layers = 2
+steps = 10
+batch_size = 2
+lr = 1e-4
 "#;
 
     fn parse(text: &str) -> Result<ModelConfigFile, ModelError> {

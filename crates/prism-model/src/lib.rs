@@ -32,7 +32,7 @@ pub use attention::{
 pub use bench::{BenchOptions, BenchRow, bench_forward};
 pub use block::{Mlp, PrismBlock, PrismBlockConfig};
 pub use config::{AttentionPattern, ModelConfigFile, PrismConfig, load_config, parse_config};
-pub use distill::{DistillConfig, DistillLayers, progressive_schedule};
+pub use distill::{DistillConfig, DistillLayers, DistillMode, progressive_schedule};
 pub use error::ModelError;
 pub use head::{NvsHead, NvsHeadConfig};
 pub use info::{BlockInfo, FlopCounts, ModelInfo, ParameterCounts};
