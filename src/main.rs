@@ -15,6 +15,9 @@ struct Cli {
 /// The subcommands; each variant's arguments and `run` live in `commands/`.
 #[derive(Subcommand, Debug)]
 enum Command {
+    /// The body model (SMPL-X layout) and the procedural humanoid.
+    #[command(subcommand)]
+    Body(commands::body::BodyCommand),
     /// Datasets: synthesise, render from scans, validate.
     #[command(subcommand)]
     Data(commands::data::DataCommand),
@@ -24,6 +27,9 @@ enum Command {
     Bench(commands::bench::BenchArgs),
     /// PSNR, SSIM and LPIPS of images (or folders of images) against ground truth.
     Metrics(commands::metrics::MetricsArgs),
+    /// 3D Gaussian splatting: render standard 3DGS PLY files.
+    #[command(subcommand)]
+    Splat(commands::splat::SplatCommand),
     /// Train the full-attention teacher (AdamW, warm-up + cosine, checkpoints, validation).
     TrainTeacher(commands::train::TrainTeacherArgs),
 }
@@ -31,10 +37,12 @@ enum Command {
 fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Body(cmd) => cmd.run(),
         Command::Data(cmd) => cmd.run(),
         Command::Info(args) => args.run(),
         Command::Bench(args) => args.run(),
         Command::Metrics(args) => args.run(),
+        Command::Splat(cmd) => cmd.run(),
         Command::TrainTeacher(args) => args.run(),
     };
     if let Err(err) = result {

@@ -109,7 +109,7 @@ impl ModelBenchArgs {
         let mut rows = Vec::new();
         for (name, config, resolutions) in runs {
             device.seed(0);
-            let mut model = config.init(&device);
+            let mut model = config.try_init(&device)?;
             for &kind in &self.attention {
                 model.set_attention_kinds(&vec![kind; model.num_blocks()]);
                 for &res in &resolutions {

@@ -5,9 +5,29 @@
 use std::time::Instant;
 
 use burn::tensor::{Device, Distribution, Tensor};
+use glam::Vec3;
+use prism_data::rays::plucker_rays;
+use prism_data::{Camera, Intrinsics};
 use serde::Serialize;
 
 use crate::prism::Prism;
+use crate::views::Views;
+
+/// Views of `b` pairs as the viewing protocol makes them, at `res x res`: the frontal source
+/// camera and targets 20 degrees to the side and 10 degrees up (and further pairs spread
+/// around), on the 2 m orbit around `(0, 0.9, 0)`, grey background.
+pub fn protocol_views(b: usize, res: usize) -> Views {
+    let k = Intrinsics::protocol_default(res as u32, res as u32);
+    let centre = Vec3::new(0.0, 0.9, 0.0);
+    let source = vec![Camera::orbit(0.0, 0.0, 2.0, centre, k); b];
+    let target = (0..b)
+        .map(|i| {
+            let t = i as f32 / b.max(1) as f32;
+            Camera::orbit(20.0 - 40.0 * t, 10.0 - 20.0 * t, 2.0, centre, k)
+        })
+        .collect();
+    Views::new(source, target, [0.5, 0.5, 0.5])
+}
 
 /// One measurement.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -37,7 +57,9 @@ pub struct BenchOptions {
     pub iters: usize,
 }
 
-/// Times the forward pass of `model` on random inputs of `res x res` pixels with batch 1.
+/// Times the forward pass of `model` on a random source image of `res x res` pixels with
+/// batch 1, seen and rendered by [`protocol_views`] (so that the geometry parts, when the
+/// model has them, work on a realistic body placement).
 /// The time includes waiting for the device to finish (`Device::sync`).
 pub fn bench_forward(
     model: &Prism,
@@ -47,10 +69,17 @@ pub fn bench_forward(
     options: BenchOptions,
 ) -> BenchRow {
     let image = Tensor::<4>::random([1, 3, res, res], Distribution::Uniform(0.0, 1.0), device);
-    let source_rays = Tensor::<4>::random([1, 6, res, res], Distribution::Default, device);
-    let target_rays = Tensor::<4>::random([1, 6, res, res], Distribution::Default, device);
+    let views = protocol_views(1, res);
+    let source_rays = plucker_rays(&views.source, device);
+    let target_rays = plucker_rays(&views.target, device);
     let run = || {
-        let out = model.forward(image.clone(), source_rays.clone(), target_rays.clone(), &[]);
+        let out = model.forward_views(
+            image.clone(),
+            source_rays.clone(),
+            target_rays.clone(),
+            &views,
+            &[],
+        );
         // Waits for the result: reading it back forces lazy backends to execute.
         let _ = out.image.into_data();
         let _ = device.sync();

@@ -38,6 +38,15 @@ impl HiddenStates {
         }
     }
 
+    /// The recorded output of block `index`, if it was asked for and has run.
+    pub fn state(&self, index: usize) -> Option<Tensor<3>> {
+        self.wanted
+            .iter()
+            .zip(&self.found)
+            .find(|(w, f)| **w == index && f.is_some())
+            .and_then(|(_, f)| f.clone())
+    }
+
     /// The recorded states, in the order asked for.
     ///
     /// # Panics

@@ -42,5 +42,5 @@ pub use parallel::{DataParallel, training_devices};
 pub use schedule::WarmupCosine;
 pub use step::{Prediction, StepLoss, StepValues, TRAINEE_FIELD, TrainItem, Trainee};
 pub use teacher::{TeacherLoss, TeacherTask};
-pub use trainer::{RUN_CONFIG_FILE, RunOptions, RunSummary, SAMPLES_DIR, Task, train};
+pub use trainer::{RUN_CONFIG_FILE, RunOptions, RunSummary, SAMPLES_DIR, Task, TaskData, train};
 pub use validate::{ValidationScores, Validator, validation_views};
