@@ -60,6 +60,16 @@ fn psnrs(run: &Path) -> Vec<f64> {
         .collect()
 }
 
+/// The mean `L_distill` of a run's training steps.
+fn mean_distill(run: &Path) -> f64 {
+    let values: Vec<f64> = read_metrics(&run.join("metrics.jsonl"))
+        .unwrap()
+        .iter()
+        .filter_map(|l| l.get("distill").and_then(|v| v.as_f64()))
+        .collect();
+    values.iter().sum::<f64>() / values.len() as f64
+}
+
 fn latest(run: &Path) -> PathBuf {
     prism_train::latest_checkpoint(run).unwrap().unwrap()
 }
@@ -140,13 +150,15 @@ fn distilled_student_stays_near_its_teacher_and_beats_the_fully_linear_ablation(
     }
 
     eprintln!(
-        "PSNR: teacher {teacher_psnr:.3} dB, progressive student {student_psnr:.3} dB, \
-         fully linear {fully_psnr:.3} dB"
+        "PSNR: teacher {teacher_psnr:.3} dB, progressive student {student_psnr:.4} dB, \
+         fully linear {fully_psnr:.4} dB"
     );
     assert!(
         (student_psnr - teacher_psnr).abs() < 1.0,
         "student {student_psnr} vs teacher {teacher_psnr}"
     );
+    // Its hidden states stay further from the teacher's than the progressive student's.
+    assert!(mean_distill(Path::new(&fully)) > mean_distill(Path::new(&student)));
     assert!(
         fully_psnr < student_psnr,
         "fully linear {fully_psnr} vs progressive {student_psnr}"
