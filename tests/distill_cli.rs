@@ -13,8 +13,7 @@ use prism_train::{
 };
 
 fn scratch(test: &str) -> PathBuf {
-    let dir =
-        std::env::temp_dir().join(format!("prism-distill-cli-{}-{test}", std::process::id()));
+    let dir = std::env::temp_dir().join(format!("prism-distill-cli-{}-{test}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     dir
@@ -88,7 +87,10 @@ fn distilled_student_stays_near_its_teacher_and_beats_the_fully_linear_ablation(
     let path = |name: &str| dir.join(name).to_str().unwrap().to_string();
 
     let teacher = path("teacher");
-    prism(&cache, &["train-teacher", "--config", cfg, "--out", &teacher]);
+    prism(
+        &cache,
+        &["train-teacher", "--config", cfg, "--out", &teacher],
+    );
     let teacher_psnr = *psnrs(Path::new(&teacher)).last().unwrap();
 
     // The progressive student, stopped after 6 steps (between the two switches) and resumed.
@@ -111,7 +113,12 @@ fn distilled_student_stays_near_its_teacher_and_beats_the_fully_linear_ablation(
     let switches: Vec<(u64, String)> = read_metrics(&Path::new(&student).join("metrics.jsonl"))
         .unwrap()
         .iter()
-        .filter_map(|l| Some((l["step"].as_u64()?, l.get("attention")?.as_str()?.to_string())))
+        .filter_map(|l| {
+            Some((
+                l["step"].as_u64()?,
+                l.get("attention")?.as_str()?.to_string(),
+            ))
+        })
         .collect();
     assert_eq!(
         switches,
@@ -124,7 +131,10 @@ fn distilled_student_stays_near_its_teacher_and_beats_the_fully_linear_ablation(
 
     // The student starts as the teacher (same validation) and ends within 1 dB of it.
     let student_psnrs = psnrs(Path::new(&student));
-    assert!((student_psnrs[0] - teacher_psnr).abs() < 1e-3, "{student_psnrs:?} {teacher_psnr}");
+    assert!(
+        (student_psnrs[0] - teacher_psnr).abs() < 1e-3,
+        "{student_psnrs:?} {teacher_psnr}"
+    );
     let student_psnr = *student_psnrs.last().unwrap();
 
     // The student checkpoint loads (evaluate, infer) with its kinds: Full last of each group.
@@ -139,7 +149,9 @@ fn distilled_student_stays_near_its_teacher_and_beats_the_fully_linear_ablation(
     let fully = path("fully_linear");
     distill(&fully, &["--mode", "fully_linear"]);
     let fully_psnr = *psnrs(Path::new(&fully)).last().unwrap();
-    let kinds = Checkpoint::read(&latest(Path::new(&fully))).unwrap().attention;
+    let kinds = Checkpoint::read(&latest(Path::new(&fully)))
+        .unwrap()
+        .attention;
     assert!(kinds.iter().all(|&k| k == AttentionKind::Linear));
     for (mode, want) in [("all_at_once", "LLFLLF"), ("teacher", "FFFFFF")] {
         let out = path(&format!("ablation-{mode}"));

@@ -433,7 +433,10 @@ mod tests {
             DistillMode::FullyLinear
         );
         let err = "linear".parse::<DistillMode>().unwrap_err();
-        assert!(err.contains("`linear`") && err.contains("all_at_once"), "{err}");
+        assert!(
+            err.contains("`linear`") && err.contains("all_at_once"),
+            "{err}"
+        );
     }
 
     #[test]

@@ -26,7 +26,10 @@ fn main() -> anyhow::Result<()> {
         warmup: 3,
         iters: 10,
     };
-    println!("{:<14} {:<14} {:>6} {:>10}", "model", "attention", "res", "ms/frame");
+    println!(
+        "{:<14} {:<14} {:>6} {:>10}",
+        "model", "attention", "res", "ms/frame"
+    );
     for (name, mode) in [
         ("teacher", DistillMode::Teacher),
         ("student", DistillMode::Progressive),

@@ -58,7 +58,11 @@ impl StudentTask {
     /// # Errors
     /// An invalid `[distill]` section, or a teacher checkpoint that cannot be read or whose
     /// architecture differs from `config`'s model.
-    pub fn new(config: &TrainingConfig, teacher: &Path, lpips_weights: Option<PathBuf>) -> Result<Self> {
+    pub fn new(
+        config: &TrainingConfig,
+        teacher: &Path,
+        lpips_weights: Option<PathBuf>,
+    ) -> Result<Self> {
         config
             .distill
             .validate(config.model.num_blocks())
@@ -137,7 +141,10 @@ impl Task for StudentTask {
             .filter(|&i| kinds[i] != current[i])
             .collect();
         model.set_attention_kinds(&kinds);
-        let linear = kinds.iter().filter(|&&k| k == AttentionKind::Linear).count();
+        let linear = kinds
+            .iter()
+            .filter(|&&k| k == AttentionKind::Linear)
+            .count();
         Some(json!({
             "attention": kinds_letters(&kinds),
             "switched_blocks": switched,
@@ -195,5 +202,61 @@ fn inner_batch(batch: &PrismBatch) -> PrismBatch {
         target_image: batch.target_image.clone().inner(),
         target_mask: batch.target_mask.clone().inner(),
         ..batch.clone()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::configs_dir;
+    use prism_data::BackendKind;
+
+    fn tiny() -> TrainingConfig {
+        TrainingConfig::load(configs_dir().join("tiny.toml")).unwrap()
+    }
+
+    #[test]
+    fn student_config_trains_at_the_fixed_distillation_rate() {
+        let config = tiny();
+        let student = student_config(&config);
+        assert_eq!(student.train.steps, config.distill.steps);
+        assert_eq!(student.train.batch_size, config.distill.batch_size);
+        let rate = crate::schedule::WarmupCosine::new(
+            student.train.lr_backbone,
+            student.train.min_lr,
+            student.train.warmup_steps,
+            student.train.steps,
+        );
+        for step in [0, 1, student.train.steps / 2, student.train.steps - 1] {
+            assert!(
+                (rate.lr_at(step) - config.distill.lr).abs() < 1e-15,
+                "step {step}"
+            );
+        }
+        assert_eq!(student.train.lr_heads, config.distill.lr);
+    }
+
+    #[test]
+    fn before_step_switches_on_the_schedule_and_reports_the_switched_blocks() {
+        let config = tiny();
+        let task = StudentTask {
+            teacher: PathBuf::new(),
+            config: config.clone(),
+            lpips_weights: None,
+        };
+        let mut model = config.model.init(&BackendKind::Ndarray.device().unwrap());
+        assert_eq!(task.before_step(&mut model, 0), None);
+        assert_eq!(task.before_step(&mut model, 3), None);
+        let event = task.before_step(&mut model, 4).unwrap();
+        assert_eq!(event["attention"], "LFFLFF");
+        assert_eq!(event["switched_blocks"], json!([0, 3]));
+        assert_eq!(event["linear_blocks"], 2);
+        assert_eq!(kinds_letters(&model.attention_kinds()), "LFFLFF");
+        assert_eq!(task.before_step(&mut model, 5), None);
+        // A resumed run at step 20 jumps straight to the schedule's kinds there.
+        let mut fresh = config.model.init(&BackendKind::Ndarray.device().unwrap());
+        let event = task.before_step(&mut fresh, 20).unwrap();
+        assert_eq!(event["switched_blocks"], json!([0, 1, 3, 4]));
+        assert_eq!(kinds_letters(&fresh.attention_kinds()), "LLFLLF");
     }
 }
