@@ -37,6 +37,8 @@ enum Command {
     Splat(commands::splat::SplatCommand),
     /// Train the full-attention teacher (AdamW, warm-up + cosine, checkpoints, validation).
     TrainTeacher(commands::train::TrainTeacherArgs),
+    /// Distil the linear-attention student from a teacher (progressive schedule, ablations).
+    DistillStudent(commands::distill::DistillStudentArgs),
 }
 
 fn main() {
@@ -49,6 +51,7 @@ fn main() {
         Command::Metrics(args) => args.run(),
         Command::Splat(cmd) => cmd.run(),
         Command::TrainTeacher(args) => args.run(),
+        Command::DistillStudent(args) => args.run(),
     };
     if let Err(err) = result {
         eprintln!("error: {err:#}");

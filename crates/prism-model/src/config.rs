@@ -422,10 +422,14 @@ depth_prior = 2.0
 gate_init = 1.0
 
 [distill]
+mode = "progressive"
 group_size = 3
 start = 1
 interval = 1
 layers = 2
+steps = 10
+batch_size = 2
+lr = 1e-4
 "#;
 
     fn parse(text: &str) -> Result<ModelConfigFile, ModelError> {

@@ -46,7 +46,7 @@ pub use attention::{
 pub use bench::{BenchOptions, BenchRow, bench_forward, protocol_views, student_kinds};
 pub use block::{Mlp, PrismBlock, PrismBlockConfig};
 pub use config::{AttentionPattern, ModelConfigFile, PrismConfig, load_config, parse_config};
-pub use distill::{DistillConfig, DistillLayers, progressive_schedule};
+pub use distill::{DistillConfig, DistillLayers, DistillMode, progressive_schedule};
 pub use dpt::{DptHead, DptHeadConfig, dpt_taps};
 pub use error::ModelError;
 pub use gaussian_head::{GaussianHead, GaussianHeadConfig, GaussianOutput};

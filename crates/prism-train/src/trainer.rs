@@ -70,8 +70,11 @@ pub trait Task {
 
     /// Called before every step `step` (0-based) with the model on the main device, e.g. to set
     /// the attention kinds of the distillation schedule. Must be a pure function of the step
-    /// (for exact resumption). The default does nothing.
-    fn before_step(&self, _model: &mut Prism, _step: usize) {}
+    /// (for exact resumption). What it returns (e.g. the blocks it switched) is written to
+    /// `metrics.jsonl` with the step and printed. The default does nothing.
+    fn before_step(&self, _model: &mut Prism, _step: usize) -> Option<Value> {
+        None
+    }
 }
 
 /// What a [`Task`] learns about the training data when its objective is built.
@@ -289,7 +292,14 @@ pub fn train(config: &TrainingConfig, task: &dyn Task, options: &RunOptions) -> 
     while let Some((step, samples)) = prefetcher.next_step() {
         let began = Instant::now();
         let samples = samples?;
-        task.before_step(&mut trainee.prism, step);
+        if let Some(event) = task.before_step(&mut trainee.prism, step) {
+            let mut line = json!({ "step": step });
+            if let (Some(line), Value::Object(fields)) = (line.as_object_mut(), &event) {
+                line.extend(fields.clone());
+            }
+            bar.println(format!("before step {}: {event}", step + 1));
+            log.write(&line)?;
+        }
         let lr = scheduler.step();
         let (lr_backbone, lr_heads) = (backbone.lr_at(step), heads.lr_at(step));
         let shares = split_into_shares(&samples, parallel.devices(), &losses, step);
