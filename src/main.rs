@@ -4,6 +4,10 @@ mod commands;
 
 use clap::{Parser, Subcommand};
 
+/// Counts live heap bytes so that `prism bench` can report the peak memory of the CPU backends.
+#[global_allocator]
+static ALLOCATOR: prism_model::PeakAllocator = prism_model::PeakAllocator;
+
 /// prism: real-time single-image human frontal view synthesis (PrismMirror) on Burn.
 #[derive(Parser, Debug)]
 #[command(name = "prism", version, about, long_about = None)]
@@ -15,27 +19,39 @@ struct Cli {
 /// The subcommands; each variant's arguments and `run` live in `commands/`.
 #[derive(Subcommand, Debug)]
 enum Command {
+    /// The body model (SMPL-X layout) and the procedural humanoid.
+    #[command(subcommand)]
+    Body(commands::body::BodyCommand),
     /// Datasets: synthesise, render from scans, validate.
     #[command(subcommand)]
     Data(commands::data::DataCommand),
     /// Size and cost of a model config: parameters, attention kinds, tokens, FLOPs.
     Info(commands::info::InfoArgs),
-    /// Benchmarks (forward time of the model, ...).
+    /// Benchmarks: `--config FILE --res R1,R2` times teacher, student and all-Linear forward
+    /// passes and the training step; subcommands for narrower ones.
     Bench(commands::bench::BenchArgs),
     /// PSNR, SSIM and LPIPS of images (or folders of images) against ground truth.
     Metrics(commands::metrics::MetricsArgs),
+    /// 3D Gaussian splatting: render standard 3DGS PLY files.
+    #[command(subcommand)]
+    Splat(commands::splat::SplatCommand),
     /// Train the full-attention teacher (AdamW, warm-up + cosine, checkpoints, validation).
     TrainTeacher(commands::train::TrainTeacherArgs),
+    /// Distil the linear-attention student from a teacher (progressive schedule, ablations).
+    DistillStudent(commands::distill::DistillStudentArgs),
 }
 
 fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Body(cmd) => cmd.run(),
         Command::Data(cmd) => cmd.run(),
         Command::Info(args) => args.run(),
         Command::Bench(args) => args.run(),
         Command::Metrics(args) => args.run(),
+        Command::Splat(cmd) => cmd.run(),
         Command::TrainTeacher(args) => args.run(),
+        Command::DistillStudent(args) => args.run(),
     };
     if let Err(err) = result {
         eprintln!("error: {err:#}");

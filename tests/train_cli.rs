@@ -146,8 +146,10 @@ fn a_killed_run_leaves_a_loadable_checkpoint_and_resumes_exactly() {
 #[test]
 fn bad_input_is_one_clear_line() {
     let dir = scratch("errors");
-    let mut broken = tiny_config(2, 1).to_toml();
-    broken = broken.replace("batch_size = 2", "batch_size = 0");
+    // `[distill]` has a `batch_size` too: zero the one of `[train]` only.
+    let mut broken = tiny_config(2, 1);
+    broken.train.batch_size = 0;
+    let broken = broken.to_toml();
     let config = dir.join("broken.toml");
     std::fs::write(&config, broken).unwrap();
     let out = prism(&config, &dir.join("run"), &[]).output().unwrap();

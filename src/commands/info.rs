@@ -99,6 +99,21 @@ fn table(name: &str, info: &ModelInfo) -> String {
     );
     s += &format!("  stage three     {:>14}\n", grouped(c.stage_three));
     s += &format!("  nvs head        {:>14}\n", grouped(c.nvs_head));
+    s += &format!("  injection       {:>14}\n", grouped(c.injection));
+    let part = |n: usize| {
+        if n == 0 {
+            "off".to_string()
+        } else {
+            grouped(n)
+        }
+    };
+    s += &format!(
+        "  smplx branch    {:>14}  (triplane {})\n",
+        part(c.smplx_branch),
+        grouped(c.triplane)
+    );
+    s += &format!("  point branch    {:>14}\n", part(c.point_branch));
+    s += &format!("  gs head         {:>14}\n", part(c.gs_head));
     s += &format!(
         "attention         {pattern}  ({linear} Linear, {} Full; F = full, L = linear)\n",
         info.blocks.len() - linear
@@ -116,6 +131,7 @@ fn table(name: &str, info: &ModelInfo) -> String {
     s += &format!("  projections+MLP {}\n", g(f.projections));
     s += &format!("  attention       {}\n", g(f.attention));
     s += &format!("  nvs head        {}\n", g(f.nvs_head));
+    s += &format!("  geometry parts  {}\n", g(f.geometry));
     s += &format!(
         "  all Full        {}   all Linear {}\n",
         g(info.flops_per_frame_all_full),

@@ -2,7 +2,10 @@
 //! library.
 
 pub mod bench;
+pub mod body;
 pub mod data;
+pub mod distill;
 pub mod info;
 pub mod metrics;
+pub mod splat;
 pub mod train;

@@ -18,6 +18,7 @@ pub mod protocol;
 pub mod raster;
 pub mod rays;
 pub mod scan;
+pub mod scan_dataset;
 pub mod synth;
 
 pub use backend::{BackendError, BackendKind};

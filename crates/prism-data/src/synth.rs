@@ -3,17 +3,14 @@
 
 use std::path::Path;
 
-use glam::{Affine3A, Mat4};
 use serde::{Deserialize, Serialize};
 
-use crate::body::{BodyModel, BodyParams};
-use crate::camera::{Intrinsics, mat4_to_rows};
-use crate::dataset::render_subject::SubjectRender;
-use crate::dataset::schema::{FORMAT_NAME, FORMAT_VERSION};
+use crate::body::BodyModel;
+use crate::camera::mat4_to_rows;
+use crate::dataset::plan::{check_settings, keyed_seed, protocol_meta, split_last};
+use crate::dataset::render_subject::ProtocolRenderer;
 use crate::dataset::{DataError, DatasetMeta, DatasetWriter, Split, SubjectRecord};
-use crate::people;
-use crate::protocol::{NUM_VIEWS, ViewingProtocol};
-use crate::raster::RenderOptions;
+use crate::people::{self, PeopleConfig};
 
 /// Seed of the procedural body model every synthetic subject is built on.
 pub const BODY_MODEL_SEED: u64 = 0;
@@ -38,7 +35,14 @@ pub struct SynthOptions {
 
 impl Default for SynthOptions {
     fn default() -> Self {
-        Self { subjects: 16, resolution: 256, seed: 0, test_fraction: 0.125, background: [1.0; 3], supersample: 3 }
+        Self {
+            subjects: 16,
+            resolution: 256,
+            seed: 0,
+            test_fraction: 0.125,
+            background: [1.0; 3],
+            supersample: 3,
+        }
     }
 }
 
@@ -56,44 +60,30 @@ pub fn subject_name(i: usize) -> String {
     format!("subject_{i:04}")
 }
 
-/// The seed of subject `i` of a dataset seeded with `seed` (a SplitMix64 step, so that nearby
-/// dataset seeds give unrelated subjects).
+/// The seed of subject `i` of a dataset seeded with `seed`.
 pub fn subject_seed(seed: u64, i: usize) -> u64 {
-    let mut z = seed.wrapping_add((i as u64 + 1).wrapping_mul(0x9e37_79b9_7f4a_7c15));
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
+    keyed_seed(seed, i as u64 + 1)
 }
 
-/// The train / test split: the last `round(n * test_fraction)` subjects are held out, at least
-/// one and at most `n - 1` when the fraction is positive (none with a single subject).
+/// The train / test split: the last `round(n * test_fraction)` subjects are held out (see
+/// [`split_last`]).
 pub fn split(n: usize, test_fraction: f32) -> Split {
-    let test = if test_fraction > 0.0 && n >= 2 {
-        ((n as f32 * test_fraction).round() as usize).clamp(1, n - 1)
-    } else {
-        0
-    };
-    let names: Vec<String> = (0..n).map(subject_name).collect();
-    Split { train: names[..n - test].to_vec(), test: names[n - test..].to_vec() }
+    split_last(&(0..n).map(subject_name).collect::<Vec<_>>(), test_fraction)
 }
 
 /// The `dataset.json` of a synthetic dataset.
 pub fn dataset_meta(options: &SynthOptions) -> DatasetMeta {
-    DatasetMeta {
-        format: FORMAT_NAME.into(),
-        version: FORMAT_VERSION,
-        width: options.resolution,
-        height: options.resolution,
-        background: options.background,
-        views: NUM_VIEWS,
-        subjects: (0..options.subjects).map(subject_name).collect(),
-        split: split(options.subjects, options.test_fraction),
-        generator: serde_json::json!({
+    protocol_meta(
+        options.resolution,
+        options.background,
+        (0..options.subjects).map(subject_name).collect(),
+        options.test_fraction,
+        serde_json::json!({
             "kind": "synth",
             "body_model": format!("procedural:{BODY_MODEL_SEED}"),
             "options": options,
         }),
-    }
+    )
 }
 
 /// Writes the synthetic dataset into `out`, skipping subjects an earlier run finished.
@@ -108,20 +98,23 @@ pub fn synth_dataset(
     on_view: &(dyn Fn() + Sync),
     on_subject: &dyn Fn(&str, bool),
 ) -> Result<SynthSummary, DataError> {
-    if options.subjects == 0 || options.resolution < 8 || !(0.0..1.0).contains(&options.test_fraction) {
+    if options.subjects == 0 {
         return Err(DataError::invalid(
             out,
-            "synthesis needs at least 1 subject, a resolution of at least 8 px and a test fraction in [0, 1)",
+            "synthesis needs at least 1 subject",
         ));
     }
-    if options.background.iter().any(|c| !(0.0..=1.0).contains(c)) {
-        return Err(DataError::invalid(out, "background components must be in [0, 1]"));
-    }
+    check_settings(
+        out,
+        options.resolution,
+        options.test_fraction,
+        options.background,
+    )?;
     let writer = DatasetWriter::open(out, dataset_meta(options))?;
     let model = BodyModel::procedural(BODY_MODEL_SEED);
-    let protocol = ViewingProtocol::default();
-    let render_options = RenderOptions { supersample: options.supersample, background: options.background, ..Default::default() };
-    let intrinsics = Intrinsics::protocol_default(options.resolution, options.resolution);
+    let people_config = PeopleConfig::for_resolution(options.resolution);
+    let renderer =
+        ProtocolRenderer::new(options.resolution, options.background, options.supersample);
     let mut summary = SynthSummary::default();
     for i in 0..options.subjects {
         let name = subject_name(i);
@@ -131,44 +124,27 @@ pub fn synth_dataset(
             continue;
         }
         let seed = subject_seed(options.seed, i);
-        let person = people::generate(&model, seed);
-        let placement = protocol.placement(seed);
-        let to_world = placement.transform(person.height);
-        let mesh = transformed(&person.mesh, &to_world);
-        let body = placed_body(&person.body, &to_world);
+        let person = people::generate_with(&model, seed, &people_config);
+        let placement = renderer.protocol.placement(seed);
         let record = SubjectRecord {
             source: format!("procedural:{seed}"),
-            mesh_to_world: mat4_to_rows(&to_world),
+            mesh_to_world: mat4_to_rows(&placement.transform(person.height)),
             height: placement.height,
         };
-        let views = protocol.views(seed);
-        let render = SubjectRender { protocol: &protocol, views: &views, intrinsics, options: &render_options };
-        render.write(&writer, &name, &mesh, &record, Some(&body), on_view)?;
+        let person = person.placed(&placement);
+        renderer.write(
+            &writer,
+            &name,
+            seed,
+            &person.mesh,
+            &record,
+            Some(&person.body),
+            on_view,
+        )?;
         summary.written += 1;
         on_subject(&name, false);
     }
     Ok(summary)
-}
-
-/// A mesh moved by a similarity transform.
-fn transformed(mesh: &crate::Mesh, m: &Mat4) -> crate::Mesh {
-    let mut out = mesh.clone();
-    for p in &mut out.positions {
-        *p = m.transform_point3(*p);
-    }
-    out
-}
-
-/// Body parameters of a person placed in the world by the similarity `m` (uniform scale `s`
-/// and translation `t`): `world = s (scale * posed + transl) + t`.
-fn placed_body(body: &BodyParams, m: &Mat4) -> BodyParams {
-    let affine = Affine3A::from_mat4(*m);
-    let s = affine.matrix3.x_axis.length();
-    let t = affine.translation;
-    let mut out = body.clone();
-    out.scale = s * body.scale;
-    out.transl = (glam::Vec3::from_array(body.transl) * s + glam::Vec3::from(t)).to_array();
-    out
 }
 
 #[cfg(test)]
@@ -180,10 +156,6 @@ mod tests {
         let s = split(8, 0.125);
         assert_eq!(s.test, vec!["subject_0007"]);
         assert_eq!(s.train.len(), 7);
-        assert_eq!(split(3, 0.1).test.len(), 1, "at least one test subject");
-        assert!(split(1, 0.5).test.is_empty(), "a single subject trains");
-        assert_eq!(split(4, 0.9).train.len(), 1, "at least one training subject");
-        assert!(split(5, 0.0).test.is_empty());
     }
 
     #[test]

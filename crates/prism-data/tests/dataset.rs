@@ -76,7 +76,8 @@ fn write_sphere_dataset(root: &Path, subjects: &[&str]) {
             mesh_to_world: glam::Mat4::IDENTITY.to_cols_array_2d(),
             height: 1.0,
         };
-        let body = serde_json::json!({"betas": vec![0.0; 10]});
+        let mut body = prism_data::BodyParams::rest("procedural:0");
+        body.betas[0] = 0.5 + s as f32;
         w.finish(&records, &points.unwrap(), &record, Some(&body))
             .unwrap();
     }
@@ -116,6 +117,14 @@ fn written_dataset_checks_clean_and_loads_into_batches() {
     assert_eq!(batch.source_points.dims(), [6, 3, 16, 16]);
     assert_eq!(batch.pairs.len(), 6);
     assert!(batch.bodies.iter().all(Option::is_some));
+    let body = batch.body_tensors(&device);
+    assert_eq!(body.pose.dims(), [6, 55, 3]);
+    let betas = body.betas.into_data().try_into_vec::<f32>().unwrap();
+    assert_eq!(
+        (betas[0], betas[30]),
+        (0.5, 1.5),
+        "subject a then subject b"
+    );
     // The source mask covers exactly the pixels with a point.
     let mask = batch
         .source_mask
@@ -134,6 +143,20 @@ fn written_dataset_checks_clean_and_loads_into_batches() {
         let has_point = (0..3).any(|c| pts[c * plane + i] != 0.0);
         assert_eq!(has_point, mask[i] > 0.5);
     }
+
+    // Loading on worker threads through Burn's data loader.
+    let loader = burn::data::dataloader::DataLoaderBuilder::new(PrismBatcher)
+        .batch_size(2)
+        .num_workers(2)
+        .set_device(device.clone())
+        .build(train.clone());
+    let batches: Vec<_> = loader.iter().collect::<Result<_, _>>().unwrap();
+    assert_eq!(batches.len(), 4);
+    assert!(
+        batches
+            .iter()
+            .all(|b| b.target_image.dims() == [6, 3, 16, 16])
+    );
 
     // Evaluation: every view 1..=100 of the held-out subject, in order.
     let eval = SampleDataset::new(

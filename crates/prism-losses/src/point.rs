@@ -32,14 +32,16 @@ impl PointLoss {
 /// source pixel), with the predicted confidence `conf` `[B, 1, H, W]` (`C = 1 + exp(.) > 0`)
 /// and the foreground `mask` `[B, 1, H, W]` (a pixel is foreground where `mask > 0.5`):
 ///
-/// `L_pts = sum_{k=0..3} 2^-k G_k + (1/N) sum_fg C |X - X_gt|_1 - (a/N) sum_fg log C`
+/// `L_pts = mean_b [ sum_{k=0..3} 2^-k G_k + (1/N) sum_fg C |X - X_gt|_1 - (a/N) sum_fg log C ]`
 ///
 /// - `G_k = (1/N_k) sum_d C_d |grad_d X_k - grad_d X_gt,k|_1`, with `X_k = X[::2^k, ::2^k]`
 ///   (every `2^k`-th row and column), `d` running over the forward differences in x and in y
 ///   whose two pixels are both foreground, `C_d` the mean confidence of those two pixels, and
 ///   `N_k` the number of foreground pixels of the subsampled mask;
-/// - `|.|_1` sums over the three coordinates; `N = N_0` is the number of foreground pixels in
-///   the whole batch (pixels of all images pooled, so images weigh by their foreground area);
+/// - `|.|_1` sums over the three coordinates; `N = N_0` is the number of foreground pixels;
+/// - the bracket is one image's loss (sums and counts over that image), averaged over the
+///   batch: every image weighs the same, and the loss of a batch split over devices is the
+///   pair-weighted mean of the shares' losses (what data-parallel training sums);
 /// - every count is clamped to at least 1, so an empty mask gives a zero loss.
 ///
 /// A prediction shifted by a constant has a zero gradient term and a positive point term.
@@ -70,27 +72,25 @@ pub fn point_loss(
 
     let fg = mask.greater_elem(0.5).float();
     let residual = x.sub(x_gt);
-    let count = |m: &Tensor<4>| m.clone().sum().clamp_min(1.0);
+    let count = |m: &Tensor<4>| per_image(m.clone()).clamp_min(1.0);
     let n = count(&fg);
 
-    let point = residual
-        .clone()
-        .abs()
-        .sum_dim(1)
-        .mul(conf.clone())
-        .mul(fg.clone())
-        .sum()
-        .div(n.clone());
+    let point = per_image(
+        residual
+            .clone()
+            .abs()
+            .sum_dim(1)
+            .mul(conf.clone())
+            .mul(fg.clone()),
+    )
+    .div(n.clone())
+    .mean();
     // log C on the foreground only; background pixels read C = 1 (log 0), so any value there
     // (even 0) leaves the loss and its gradient finite.
     let background = fg.clone().neg().add_scalar(1.0);
-    let confidence = conf
-        .clone()
-        .mul(fg.clone())
-        .add(background)
-        .log()
-        .sum()
+    let confidence = per_image(conf.clone().mul(fg.clone()).add(background).log())
         .div(n)
+        .mean()
         .mul_scalar(-alpha);
 
     let mut gradient: Option<Tensor<1>> = None;
@@ -106,6 +106,7 @@ pub fn point_loss(
         );
         let term = gradient_term(r, c, m.clone())
             .div(count(&m))
+            .mean()
             .mul_scalar(1.0 / step as f64);
         gradient = Some(match gradient {
             Some(g) => g.add(term),
@@ -120,8 +121,9 @@ pub fn point_loss(
     }
 }
 
-/// `sum_d C_d |grad_d r|_1` over the x and y forward differences of the residual
-/// `r = X - X_gt` (so `grad X - grad X_gt = grad r`) whose two pixels are both foreground.
+/// `sum_d C_d |grad_d r|_1` per image, `[B]`, over the x and y forward differences of the
+/// residual `r = X - X_gt` (so `grad X - grad X_gt = grad r`) whose two pixels are both
+/// foreground.
 fn gradient_term(r: Tensor<4>, c: Tensor<4>, m: Tensor<4>) -> Tensor<1> {
     let [b, ch, h, w] = r.dims();
     let mut sum: Option<Tensor<1>> = None;
@@ -141,13 +143,19 @@ fn gradient_term(r: Tensor<4>, c: Tensor<4>, m: Tensor<4>) -> Tensor<1> {
         let c_d = cut(c.clone(), 1, 1)
             .add(cut(c.clone(), 1, 0))
             .mul_scalar(0.5);
-        let s = diff.abs().sum_dim(1).mul(c_d).mul(both).sum();
+        let s = per_image(diff.abs().sum_dim(1).mul(c_d).mul(both));
         sum = Some(match sum {
             Some(acc) => acc.add(s),
             None => s,
         });
     }
     sum.expect("at least one side has two pixels")
+}
+
+/// The sum of each image of `t` `[B, C, H, W]`, `[B]`.
+fn per_image(t: Tensor<4>) -> Tensor<1> {
+    let [b, ..] = t.dims();
+    t.sum_dim(1).sum_dim(2).sum_dim(3).reshape([b])
 }
 
 /// Every `step`-th row and column (rows and columns `0, step, 2 step, ...`).

@@ -8,7 +8,9 @@ use burn::tensor::Tensor;
 pub struct SmplxParams {
     /// Shape `beta`, `[B, 10]`.
     pub beta: Tensor<2>,
-    /// Pose `theta`: 55 joints x 3 axis-angle, flattened to `[B, 165]`.
+    /// Pose `theta`, flattened per subject: 55 joints x 3 axis-angle (`[B, 165]`), or, as the
+    /// teacher's objective uses it, 55 rotation matrices (`[B, 495]`, see
+    /// `prism_model::smplx_branch`: matrices compare smoothly where axis-angle vectors jump).
     pub theta: Tensor<2>,
     /// Expression `psi`, `[B, 10]`.
     pub psi: Tensor<2>,
@@ -38,12 +40,14 @@ impl SmplxParams {
     }
 }
 
-/// `L_smplx = (1 / sum_b m_b) sum_b m_b (|beta_b - beta*_b|^2 + |theta_b - theta*_b|^2 +
+/// `L_smplx = (1 / B) sum_b m_b (|beta_b - beta*_b|^2 + |theta_b - theta*_b|^2 +
 /// |psi_b - psi*_b|^2 + |pi_b - pi*_b|^2)`: the summed squared errors of the four parameter
-/// groups, averaged over the subjects of the batch that have a fit.
+/// groups, averaged over the batch, where the pairs whose subject has no fit count zero.
 ///
 /// `has_fit` is `[B]` with 1 for subjects with a body-model fit and 0 for those without
-/// (`None`: all have one); with no fit in the batch the loss is 0. Returns `[1]`.
+/// (`None`: all have one); with no fit in the batch the loss is 0. Dividing by `B` (not by the
+/// number of fits) keeps the loss a mean over pairs, so a batch split over devices gives the
+/// pair-weighted mean of the shares' losses. Returns `[1]`.
 pub fn smplx_loss(pred: &SmplxParams, gt: &SmplxParams, has_fit: Option<Tensor<1>>) -> Tensor<1> {
     let per_subject = pred
         .parts()
@@ -60,9 +64,6 @@ pub fn smplx_loss(pred: &SmplxParams, gt: &SmplxParams, has_fit: Option<Tensor<1
     let per_subject = per_subject.reshape([batch]);
     match has_fit {
         None => per_subject.mean(),
-        Some(mask) => {
-            let count = mask.clone().sum().clamp_min(1.0);
-            per_subject.mul(mask).sum().div(count)
-        }
+        Some(mask) => per_subject.mul(mask).mean(),
     }
 }

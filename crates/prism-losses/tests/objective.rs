@@ -48,7 +48,7 @@ fn subject_sse(a: &SmplxParams, b: &SmplxParams, subject: usize) -> f64 {
 }
 
 #[test]
-fn smplx_loss_averages_summed_squared_errors_over_fitted_subjects() {
+fn smplx_loss_averages_summed_squared_errors_over_pairs_with_fits_counting_zero_without() {
     let device = ndarray();
     let (pred, gt) = (params(1, 3, &device), params(10, 3, &device));
     let sse: Vec<f64> = (0..3).map(|b| subject_sse(&pred, &gt, b)).collect();
@@ -56,7 +56,7 @@ fn smplx_loss_averages_summed_squared_errors_over_fitted_subjects() {
     assert!((all - sse.iter().sum::<f64>() / 3.0).abs() < 1e-4 * all);
     let mask = Tensor::<1>::from_floats([1.0, 0.0, 1.0], &device);
     let fitted = scalar(&smplx_loss(&pred, &gt, Some(mask)));
-    assert!((fitted - (sse[0] + sse[2]) / 2.0).abs() < 1e-4 * fitted);
+    assert!((fitted - (sse[0] + sse[2]) / 3.0).abs() < 1e-4 * fitted);
     let none = Tensor::<1>::zeros([3], &device);
     assert_eq!(scalar(&smplx_loss(&pred, &gt, Some(none))), 0.0);
 }

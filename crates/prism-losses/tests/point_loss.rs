@@ -6,7 +6,7 @@ mod common;
 use common::{ndarray, tensor, uniform};
 use prism_losses::point_loss;
 
-/// The documented definition, with loops in f64: values indexed `[b][c][y][x]` flattened.
+/// The documented definition, with loops in f64: each image's terms, averaged over the batch.
 #[allow(clippy::too_many_arguments)]
 fn reference(
     x: &[f32],
@@ -18,6 +18,36 @@ fn reference(
     w: usize,
     alpha: f64,
 ) -> (f64, f64, f64) {
+    let (points, pixels) = (3 * h * w, h * w);
+    let mut sum = (0.0, 0.0, 0.0);
+    for i in 0..b {
+        let image = |v: &[f32], len: usize| v[i * len..(i + 1) * len].to_vec();
+        let (g, p, c) = image_reference(
+            &image(x, points),
+            &image(gt, points),
+            &image(conf, pixels),
+            &image(mask, pixels),
+            h,
+            w,
+            alpha,
+        );
+        sum = (sum.0 + g, sum.1 + p, sum.2 + c);
+    }
+    let n = b as f64;
+    (sum.0 / n, sum.1 / n, sum.2 / n)
+}
+
+/// One image's terms, with loops in f64: values indexed `[c][y][x]` flattened.
+fn image_reference(
+    x: &[f32],
+    gt: &[f32],
+    conf: &[f32],
+    mask: &[f32],
+    h: usize,
+    w: usize,
+    alpha: f64,
+) -> (f64, f64, f64) {
+    let b = 1;
     let p = |b_: usize, c: usize, y: usize, xx: usize| ((b_ * 3 + c) * h + y) * w + xx;
     let s = |b_: usize, y: usize, xx: usize| (b_ * h + y) * w + xx;
     let fg = |b_, y, xx| mask[s(b_, y, xx)] > 0.5;

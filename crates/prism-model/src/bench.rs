@@ -1,13 +1,45 @@
-//! Forward-time benchmark of the model (what `prism bench model` runs): time per frame of one
-//! (source, target) pair, median over repeated runs after warm-up, inference mode (no
-//! autodiff, so Full attention goes through Burn's fused op).
+//! Forward-time benchmark of the model (what `prism bench` and `prism bench model` run): time
+//! per frame of one (source, target) pair, median over repeated runs after warm-up, inference
+//! mode (no autodiff, so Full attention goes through Burn's fused op), and the peak memory of
+//! the timed runs ([`MemoryProbe`]).
 
 use std::time::Instant;
 
 use burn::tensor::{Device, Distribution, Tensor};
+use glam::Vec3;
+use prism_data::rays::plucker_rays;
+use prism_data::{Camera, Intrinsics};
 use serde::Serialize;
 
+use crate::attention::AttentionKind;
+use crate::distill::{DistillConfig, progressive_schedule};
+use crate::memory::MemoryProbe;
 use crate::prism::Prism;
+use crate::views::Views;
+
+/// The attention kinds the distilled student ends with: the progressive schedule after its
+/// last switch (`group_size - 1` Linear blocks in every full group, the last block of each
+/// group Full; paper scale: 30 of 36 blocks Linear).
+pub fn student_kinds(distill: &DistillConfig, num_blocks: usize) -> Vec<AttentionKind> {
+    let last_switch = distill.start + distill.interval * distill.group_size.max(1);
+    progressive_schedule(last_switch, distill, num_blocks)
+}
+
+/// Views of `b` pairs as the viewing protocol makes them, at `res x res`: the frontal source
+/// camera and targets 20 degrees to the side and 10 degrees up (and further pairs spread
+/// around), on the 2 m orbit around `(0, 0.9, 0)`, grey background.
+pub fn protocol_views(b: usize, res: usize) -> Views {
+    let k = Intrinsics::protocol_default(res as u32, res as u32);
+    let centre = Vec3::new(0.0, 0.9, 0.0);
+    let source = vec![Camera::orbit(0.0, 0.0, 2.0, centre, k); b];
+    let target = (0..b)
+        .map(|i| {
+            let t = i as f32 / b.max(1) as f32;
+            Camera::orbit(20.0 - 40.0 * t, 10.0 - 20.0 * t, 2.0, centre, k)
+        })
+        .collect();
+    Views::new(source, target, [0.5, 0.5, 0.5])
+}
 
 /// One measurement.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -22,9 +54,9 @@ pub struct BenchRow {
     pub ms: f64,
     /// `1000 / ms`.
     pub fps: f64,
-    /// Bytes the device's allocator had reserved after the timed runs (an upper bound of the
-    /// peak in use, as pools keep freed pages); `None` where the backend does not report it
-    /// (the CPU backends ndarray and flex).
+    /// Peak memory of the timed runs in bytes, as [`MemoryProbe`] measures it: the device
+    /// pool's reservation on wgpu / cuda, the growth of the process's resident set on the CPU
+    /// backends (Linux); `None` where neither is available.
     pub peak_mem_bytes: Option<u64>,
 }
 
@@ -37,7 +69,9 @@ pub struct BenchOptions {
     pub iters: usize,
 }
 
-/// Times the forward pass of `model` on random inputs of `res x res` pixels with batch 1.
+/// Times the forward pass of `model` on a random source image of `res x res` pixels with
+/// batch 1, seen and rendered by [`protocol_views`] (so that the geometry parts, when the
+/// model has them, work on a realistic body placement).
 /// The time includes waiting for the device to finish (`Device::sync`).
 pub fn bench_forward(
     model: &Prism,
@@ -47,10 +81,17 @@ pub fn bench_forward(
     options: BenchOptions,
 ) -> BenchRow {
     let image = Tensor::<4>::random([1, 3, res, res], Distribution::Uniform(0.0, 1.0), device);
-    let source_rays = Tensor::<4>::random([1, 6, res, res], Distribution::Default, device);
-    let target_rays = Tensor::<4>::random([1, 6, res, res], Distribution::Default, device);
+    let views = protocol_views(1, res);
+    let source_rays = plucker_rays(&views.source, device);
+    let target_rays = plucker_rays(&views.target, device);
     let run = || {
-        let out = model.forward(image.clone(), source_rays.clone(), target_rays.clone(), &[]);
+        let out = model.forward_views(
+            image.clone(),
+            source_rays.clone(),
+            target_rays.clone(),
+            &views,
+            &[],
+        );
         // Waits for the result: reading it back forces lazy backends to execute.
         let _ = out.image.into_data();
         let _ = device.sync();
@@ -58,11 +99,14 @@ pub fn bench_forward(
     for _ in 0..options.warmup {
         run();
     }
+    let mut probe = MemoryProbe::start(device);
     let mut times: Vec<f64> = (0..options.iters.max(1))
         .map(|_| {
             let start = Instant::now();
             run();
-            start.elapsed().as_secs_f64() * 1e3
+            let ms = start.elapsed().as_secs_f64() * 1e3;
+            probe.sample();
+            ms
         })
         .collect();
     times.sort_by(|a, b| a.total_cmp(b));
@@ -74,7 +118,7 @@ pub fn bench_forward(
         tokens: 2 * (res / patch) * (res / patch),
         ms,
         fps: 1e3 / ms,
-        peak_mem_bytes: device.memory_pool_usage().map(|u| u.bytes_reserved),
+        peak_mem_bytes: probe.peak_bytes(),
     }
 }
 
@@ -85,5 +129,34 @@ fn median(sorted: &[f64]) -> f64 {
         sorted[n / 2]
     } else {
         0.5 * (sorted[n / 2 - 1] + sorted[n / 2])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn student_kinds_are_the_schedule_after_its_last_switch() {
+        let count = |kinds: &[AttentionKind]| {
+            kinds
+                .iter()
+                .filter(|&&k| k == AttentionKind::Linear)
+                .count()
+        };
+        let paper = DistillConfig::new();
+        let kinds = student_kinds(&paper, 36);
+        assert_eq!(count(&kinds), 30);
+        assert_eq!(kinds, progressive_schedule(10_000_000, &paper, 36));
+        // All switches at once, and a short last group that keeps its last block Full.
+        let at_once = DistillConfig::new()
+            .with_group_size(3)
+            .with_start(0)
+            .with_interval(0);
+        let letters: String = student_kinds(&at_once, 8)
+            .iter()
+            .map(|k| k.letter())
+            .collect();
+        assert_eq!(letters, "LLFLLFLF");
     }
 }

@@ -155,6 +155,50 @@ pub struct PrismConfig {
     /// `eps` of every LayerNorm and QK RMSNorm.
     #[config(default = 1e-5)]
     pub norm_eps: f64,
+    /// Build the SMPL-X branch and inject its position-map features `F_smpl` (the paper's
+    /// ablation "w/o pos. map feat." is `false`).
+    #[config(default = false)]
+    pub smplx_branch: bool,
+    /// Build the point branch and inject its point-map features `F_pts` (the paper's ablation
+    /// "w/o point map feat." is `false`).
+    #[config(default = false)]
+    pub point_branch: bool,
+    /// Build the 3DGS head (`I_gs`, trained with `L_gs`).
+    #[config(default = false)]
+    pub gs_head: bool,
+    /// The body model of the SMPL-X branch: `procedural:SEED` (the procedural humanoid that
+    /// `prism data synth` uses with seed 0) or the path of an SMPL-X `.npz`. Must be the model
+    /// the dataset's `body.json` fits were made with.
+    #[config(default = "String::from(\"procedural:0\")")]
+    pub body_model: String,
+    /// World height in metres given to the predicted posed body when it is placed from the
+    /// weak-perspective camera (see `placement.rs`; 1.77 for the procedural people scaled to
+    /// 1.80 m with hair and shoes).
+    #[config(default = 1.77)]
+    pub body_height: f64,
+    /// Width of the SMPL-X branch's adapter and regressor.
+    #[config(default = 128)]
+    pub smplx_width: usize,
+    /// Side `R` of each triplane plane (texels).
+    #[config(default = 64)]
+    pub triplane_resolution: usize,
+    /// Channels of the triplane and of `F_smpl` (paper: 32).
+    #[config(default = 32)]
+    pub triplane_channels: usize,
+    /// Channels of the point branch's DPT head.
+    #[config(default = 64)]
+    pub point_width: usize,
+    /// Learned feature channels carried by each point (`F_pts` has 2 more: coverage and depth).
+    #[config(default = 8)]
+    pub point_features: usize,
+    /// Distance (metres) from the source camera at which the point branch and the 3DGS head
+    /// place their points at initialisation (the protocol's orbit radius, 2 m).
+    #[config(default = 2.0)]
+    pub depth_prior: f64,
+    /// Initial value of the gates `g_smpl` and `g_pts` (`g_res` starts at 0). Not 0: behind a
+    /// zero-initialised convolution a zero gate never receives a gradient (see `injection.rs`).
+    #[config(default = 1.0)]
+    pub gate_init: f64,
 }
 
 impl PrismConfig {
@@ -226,7 +270,43 @@ impl PrismConfig {
                 return fail(field, format!("{value} is not a positive number"));
             }
         }
+        for (field, value) in [
+            ("model.smplx_width", self.smplx_width),
+            ("model.triplane_resolution", self.triplane_resolution),
+            ("model.triplane_channels", self.triplane_channels),
+            ("model.point_features", self.point_features),
+        ] {
+            if value == 0 {
+                return fail(field, "must be positive".into());
+            }
+        }
+        if self.point_width < 2 {
+            return fail("model.point_width", "must be at least 2".into());
+        }
+        for (field, value) in [
+            ("model.body_height", self.body_height),
+            ("model.depth_prior", self.depth_prior),
+        ] {
+            if !(value.is_finite() && value > 0.0) {
+                return fail(field, format!("{value} is not a positive number"));
+            }
+        }
+        if !self.gate_init.is_finite() {
+            return fail(
+                "model.gate_init",
+                format!("{} is not a number", self.gate_init),
+            );
+        }
+        if self.smplx_branch {
+            crate::body_model::check_body_model(&self.body_model)?;
+        }
         self.attention_kinds().map(|_| ())
+    }
+
+    /// Whether any geometry part (SMPL-X branch, point branch, 3DGS head) is enabled: then the
+    /// forward pass needs the cameras ([`crate::Prism::forward_views`]).
+    pub fn has_geometry(&self) -> bool {
+        self.smplx_branch || self.point_branch || self.gs_head
     }
 }
 
@@ -328,12 +408,28 @@ linear_feature_map = "relu"
 linear_eps = 1e-6
 init_std = 0.02
 norm_eps = 1e-5
+smplx_branch = true
+point_branch = true
+gs_head = true
+body_model = "procedural:0"
+body_height = 1.77
+smplx_width = 64
+triplane_resolution = 32
+triplane_channels = 32
+point_width = 32
+point_features = 8
+depth_prior = 2.0
+gate_init = 1.0
 
 [distill]
+mode = "progressive"
 group_size = 3
 start = 1
 interval = 1
 layers = 2
+steps = 10
+batch_size = 2
+lr = 1e-4
 "#;
 
     fn parse(text: &str) -> Result<ModelConfigFile, ModelError> {

@@ -102,10 +102,83 @@ impl<'de> Deserialize<'de> for DistillLayers {
     }
 }
 
-/// The `[distill]` section: progressive linear-attention stitching (paper Sec. 3.4 and the
-/// supplement's training details).
+/// Which student `prism distill-student` trains: the paper's method or one of its ablations
+/// (paper Sec. 4.4, "Ablation Study"). Written in `[distill]` as `mode = "progressive"`, ...
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DistillMode {
+    /// The paper's progressive stitching: from `start`, one more block of every group switches
+    /// to Linear every `interval` steps (see [`progressive_schedule`]).
+    #[default]
+    Progressive,
+    /// The "no progressive schedule" ablation: every switchable block (all but the last of each
+    /// group) is Linear from step 0 (`start` and `interval` are not used).
+    AllAtOnce,
+    /// The "fully linear attention" ablation: every block, the last of each group too, is
+    /// Linear from step 0, trained without a schedule.
+    FullyLinear,
+    /// The "teacher" row: no block ever switches; the copy of the teacher is trained on the
+    /// same objective and budget as the student.
+    Teacher,
+}
+
+impl DistillMode {
+    /// The name written in config files (`progressive`, `all_at_once`, `fully_linear`,
+    /// `teacher`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Progressive => "progressive",
+            Self::AllAtOnce => "all_at_once",
+            Self::FullyLinear => "fully_linear",
+            Self::Teacher => "teacher",
+        }
+    }
+
+    /// Every mode, in the order above.
+    pub const ALL: [DistillMode; 4] = [
+        Self::Progressive,
+        Self::AllAtOnce,
+        Self::FullyLinear,
+        Self::Teacher,
+    ];
+}
+
+impl fmt::Display for DistillMode {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for DistillMode {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let wanted = s.to_ascii_lowercase().replace('-', "_");
+        Self::ALL
+            .into_iter()
+            .find(|m| m.name() == wanted)
+            .ok_or_else(|| {
+                format!(
+                    "unknown distillation mode `{s}` (expected progressive, all_at_once, \
+                     fully_linear or teacher)"
+                )
+            })
+    }
+}
+
+/// The `[distill]` section: the student job (`prism distill-student`) and its progressive
+/// linear-attention stitching (paper Sec. 3.4 and the supplement's "Student Distillation").
+///
+/// The run length, batch and learning rate of the student live here rather than in `[train]`
+/// (which describes the teacher's pretraining): the student trains `steps` steps of
+/// `batch_size` samples at the fixed learning rate `lr`; the rest of `[train]` (weight decay,
+/// clipping, checkpoints, validation, seed) applies to both jobs.
 #[derive(Config, Debug)]
 pub struct DistillConfig {
+    /// Which student: `progressive` (the paper), or the ablations `all_at_once`,
+    /// `fully_linear`, `teacher` (see [`DistillMode`]).
+    #[config(default = "DistillMode::Progressive")]
+    pub mode: DistillMode,
     /// `G`, the consecutive blocks that form a group; the last block of each group always stays
     /// Full (paper: 6).
     #[config(default = 6)]
@@ -121,6 +194,17 @@ pub struct DistillConfig {
     /// list of block indices.
     #[config(default = "DistillLayers::Count(6)")]
     pub layers: DistillLayers,
+    /// Optimizer steps of the distillation (paper supplement: 40000; `--steps` overrides).
+    #[config(default = 40000)]
+    pub steps: usize,
+    /// Samples per distillation step, each with `train.targets_per_sample` target views
+    /// (paper: a batch of 4 pairs on one GPU, i.e. 1 sample of 4 targets).
+    #[config(default = 1)]
+    pub batch_size: usize,
+    /// The fixed learning rate of the whole student, backbone and heads alike, without warm-up
+    /// or annealing (paper supplement: 1e-6).
+    #[config(default = 1e-6)]
+    pub lr: f64,
 }
 
 impl DistillConfig {
@@ -135,7 +219,56 @@ impl DistillConfig {
                 "must be at least 1",
             ));
         }
+        if self.steps == 0 {
+            return Err(ModelError::invalid("distill.steps", "must be at least 1"));
+        }
+        if self.batch_size == 0 {
+            return Err(ModelError::invalid(
+                "distill.batch_size",
+                "must be at least 1",
+            ));
+        }
+        if !(self.lr.is_finite() && self.lr > 0.0) {
+            return Err(ModelError::invalid(
+                "distill.lr",
+                format!("{} is not a positive number", self.lr),
+            ));
+        }
         self.layers.resolve(num_blocks).map(|_| ())
+    }
+
+    /// The student's attention kind of every block at distillation `step` (0-based: the kinds
+    /// step `step` trains with), as [`DistillConfig::mode`] says: [`progressive_schedule`]
+    /// for `progressive`; for `all_at_once` the schedule's final kinds from step 0; every block
+    /// Linear for `fully_linear`; every block Full for `teacher`. A pure function of the step,
+    /// so a resumed distillation switches exactly where an uninterrupted one does.
+    pub fn kinds_at(&self, step: usize, num_blocks: usize) -> Vec<AttentionKind> {
+        match self.mode {
+            DistillMode::Progressive => progressive_schedule(step, self, num_blocks),
+            DistillMode::AllAtOnce => {
+                let at_once = self.clone().with_start(0).with_interval(0);
+                progressive_schedule(0, &at_once, num_blocks)
+            }
+            DistillMode::FullyLinear => vec![AttentionKind::Linear; num_blocks],
+            DistillMode::Teacher => vec![AttentionKind::Full; num_blocks],
+        }
+    }
+
+    /// The kinds of the distilled student: those of its last step, `steps - 1` (what its final
+    /// checkpoint records and what inference runs).
+    pub fn final_kinds(&self, num_blocks: usize) -> Vec<AttentionKind> {
+        self.kinds_at(self.steps.saturating_sub(1), num_blocks)
+    }
+
+    /// The first step at which the schedule has switched every block it will switch (0 for
+    /// the modes without a schedule): `start + (G - 2) interval` for `progressive`.
+    pub fn last_switch(&self) -> usize {
+        match self.mode {
+            DistillMode::Progressive if self.group_size >= 2 => {
+                self.start + (self.group_size - 2) * self.interval
+            }
+            _ => 0,
+        }
     }
 
     /// The blocks whose hidden states enter `L_distill` (see [`DistillLayers::resolve`]).
@@ -241,6 +374,83 @@ mod tests {
         let config = DistillConfig::new().with_start(0).with_interval(0);
         let kinds = progressive_schedule(0, &config, 36);
         assert_eq!(count_linear(&kinds), 30);
+    }
+
+    #[test]
+    fn modes_give_the_ablations_kinds() {
+        let letters = |config: &DistillConfig, step| {
+            config
+                .kinds_at(step, 8)
+                .iter()
+                .map(|k| k.letter())
+                .collect::<String>()
+        };
+        // 8 blocks in groups of 3, first switch at step 10, then every 5 steps.
+        let base = DistillConfig::new()
+            .with_group_size(3)
+            .with_start(10)
+            .with_interval(5)
+            .with_steps(30);
+        let progressive = base.clone();
+        assert_eq!(letters(&progressive, 0), "FFFFFFFF");
+        assert_eq!(letters(&progressive, 10), "LFFLFFLF");
+        assert_eq!(letters(&progressive, 15), "LLFLLFLF");
+        assert_eq!(progressive.last_switch(), 15);
+        let at_once = base.clone().with_mode(DistillMode::AllAtOnce);
+        for step in [0, 9, 10, 1000] {
+            assert_eq!(letters(&at_once, step), "LLFLLFLF", "step {step}");
+        }
+        assert_eq!(at_once.last_switch(), 0);
+        let linear = base.clone().with_mode(DistillMode::FullyLinear);
+        assert_eq!(letters(&linear, 0), "LLLLLLLL");
+        let teacher = base.clone().with_mode(DistillMode::Teacher);
+        assert_eq!(letters(&teacher, 1000), "FFFFFFFF");
+        // The student's final kinds are those of its last step.
+        assert_eq!(progressive.final_kinds(8), progressive.kinds_at(29, 8));
+        assert_eq!(
+            progressive.clone().with_steps(12).final_kinds(8),
+            progressive.kinds_at(10, 8)
+        );
+        // Paper scale: the schedule is complete at 25k of the 40k steps.
+        let paper = paper();
+        assert_eq!(paper.last_switch(), 25_000);
+        assert_eq!(count_linear(&paper.final_kinds(36)), 30);
+    }
+
+    #[test]
+    fn modes_parse_from_their_names() {
+        for mode in DistillMode::ALL {
+            assert_eq!(mode.name().parse::<DistillMode>().unwrap(), mode);
+            let toml = format!("mode = \"{mode}\"");
+            #[derive(Deserialize)]
+            struct M {
+                mode: DistillMode,
+            }
+            assert_eq!(toml::from_str::<M>(&toml).unwrap().mode, mode);
+        }
+        assert_eq!(
+            "Fully-Linear".parse::<DistillMode>().unwrap(),
+            DistillMode::FullyLinear
+        );
+        let err = "linear".parse::<DistillMode>().unwrap_err();
+        assert!(
+            err.contains("`linear`") && err.contains("all_at_once"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn invalid_run_settings_are_named() {
+        for (config, field) in [
+            (paper().with_steps(0), "distill.steps"),
+            (paper().with_batch_size(0), "distill.batch_size"),
+            (paper().with_lr(0.0), "distill.lr"),
+            (paper().with_lr(f64::NAN), "distill.lr"),
+        ] {
+            let err = config.validate(36).unwrap_err().to_string();
+            assert!(err.contains(field), "{err}");
+        }
+        assert!(paper().validate(36).is_ok());
     }
 
     #[test]

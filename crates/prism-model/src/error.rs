@@ -2,7 +2,8 @@
 
 use std::path::PathBuf;
 
-/// What can go wrong when loading or checking a model configuration.
+/// What can go wrong when loading or checking a model configuration, building the model or
+/// exporting its predictions.
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {
     /// The config file could not be read.
@@ -29,6 +30,12 @@ pub enum ModelError {
         /// What is wrong with it.
         message: String,
     },
+    /// The body model named by `model.body_model` could not be loaded.
+    #[error("body model: {0}")]
+    Body(prism_data::BodyError),
+    /// Exporting predicted Gaussians failed.
+    #[error("{0}")]
+    Render(#[from] prism_render::RenderError),
     /// [`ModelError::Invalid`] found in a file.
     #[error("{path}: invalid value of `{field}`: {message}")]
     InvalidInFile {

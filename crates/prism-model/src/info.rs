@@ -11,12 +11,16 @@
 //!   normaliser (`sum_j phi(k_j)` and `phi(q_i) . k_sum`, counted as `2 T d` each):
 //!   `4 T d (d_h + 1)`, linear in `T`.
 //!
-//! The tokenizer costs `2 (T/2) (9 + 6) p^2 d`, the NVS head `2 (T/2) d 3 p^2`.
+//! The tokenizer costs `2 (T/2) (9 + 6) p^2 d`, the NVS head `2 (T/2) d 3 p^2`; the geometry
+//! parts' dense layers are counted in [`FlopCounts::geometry`].
 
 use serde::Serialize;
 
 use crate::attention::AttentionKind;
 use crate::config::PrismConfig;
+use crate::dpt::{dpt_taps, reassemble_factors};
+use crate::gaussian_head::GAUSSIAN_CHANNELS;
+use crate::smplx_branch::SMPLX_OUTPUTS;
 use crate::tokenizer::{SOURCE_CHANNELS, TARGET_CHANNELS};
 
 /// Parameter counts of a model, total and per part.
@@ -32,8 +36,23 @@ pub struct ParameterCounts {
     pub stage_three: usize,
     /// The NVS head.
     pub nvs_head: usize,
+    /// The injection: zero convolutions of the enabled branches and the gates.
+    pub injection: usize,
+    /// The SMPL-X branch (adapter, regressor, triplane); 0 when disabled.
+    pub smplx_branch: usize,
+    /// The point branch (DPT head); 0 when disabled.
+    pub point_branch: usize,
+    /// The 3DGS head; 0 when disabled.
+    pub gs_head: usize,
+    /// The triplane alone (part of `smplx_branch`).
+    pub triplane: usize,
     /// One transformer block.
     pub per_block: usize,
+}
+
+/// Channels of `F_pts` for a config: the learned point features plus coverage and depth.
+fn point_map_channels(config: &PrismConfig) -> usize {
+    config.point_features + 2
 }
 
 impl ParameterCounts {
@@ -46,12 +65,63 @@ impl ParameterCounts {
         let stage_one = config.stage_one_blocks * per_block;
         let stage_three = config.stage_three_blocks * per_block;
         let nvs_head = d + d * 3 * p2;
+        let zero_conv = |channels: usize| (p2 * channels + 1) * d + 1;
+        let mut injection = 1;
+        if config.smplx_branch {
+            injection += zero_conv(config.triplane_channels);
+        }
+        if config.point_branch {
+            injection += zero_conv(point_map_channels(config));
+        }
+        let h = config.smplx_width;
+        let r = config.triplane_resolution;
+        let triplane = if config.smplx_branch {
+            3 * config.triplane_channels * r * r
+        } else {
+            0
+        };
+        let smplx_branch = if config.smplx_branch {
+            2 * d + (d * h + h) + h + (h * h + h) + (h * SMPLX_OUTPUTS + SMPLX_OUTPUTS) + triplane
+        } else {
+            0
+        };
+        let point_branch = if config.point_branch {
+            let c = config.point_width;
+            let taps = dpt_taps(config.stage_one_blocks).len();
+            let reassemble: usize = reassemble_factors(config.patch_size)[..taps]
+                .iter()
+                .map(|f| (d + 1) * c * f * f)
+                .sum();
+            let refine = (taps - 1) * (9 * c * c + c);
+            let head =
+                9 * c * (c / 2) + c / 2 + (c / 2 + 1) * 32 + 33 * (3 + config.point_features);
+            reassemble + refine + head
+        } else {
+            0
+        };
+        let gs_head = if config.gs_head {
+            d + d * GAUSSIAN_CHANNELS * p2
+        } else {
+            0
+        };
         Self {
-            total: tokenizer + stage_one + stage_three + nvs_head,
+            total: tokenizer
+                + stage_one
+                + stage_three
+                + nvs_head
+                + injection
+                + smplx_branch
+                + point_branch
+                + gs_head,
             tokenizer,
             stage_one,
             stage_three,
             nvs_head,
+            injection,
+            smplx_branch,
+            point_branch,
+            gs_head,
+            triplane,
             per_block,
         }
     }
@@ -70,6 +140,45 @@ pub struct FlopCounts {
     pub attention: f64,
     /// The NVS head's projection.
     pub nvs_head: f64,
+    /// The geometry parts' dense layers: the SMPL-X adapter and regressor and its triplane
+    /// taps, the point branch's DPT head, the zero convolutions and the 3DGS head's projection
+    /// (rasterization and splatting are not matrix products and are left out).
+    pub geometry: f64,
+}
+
+/// Forward FLOPs of the geometry parts of one frame of `s` pixels (see [`FlopCounts::geometry`]).
+fn geometry_flops(config: &PrismConfig, s: f64) -> f64 {
+    let d = config.width as f64;
+    let p2 = (config.patch_size * config.patch_size) as f64;
+    let tokens = s / p2;
+    let mut flops = 0.0;
+    if config.smplx_branch {
+        let h = config.smplx_width as f64;
+        let c = config.triplane_channels as f64;
+        flops += 2.0 * tokens * (d * h + 2.0 * h) + 2.0 * (h * h + h * SMPLX_OUTPUTS as f64);
+        // Three planes, four bilinear taps per channel and pixel.
+        flops += 2.0 * 12.0 * c * s;
+        flops += 2.0 * s * c * d;
+    }
+    if config.point_branch {
+        let c = config.point_width as f64;
+        let taps = dpt_taps(config.stage_one_blocks).len();
+        let factors = reassemble_factors(config.patch_size);
+        for (k, &f) in factors[..taps].iter().enumerate() {
+            let area = tokens * (f * f) as f64;
+            flops += 2.0 * tokens * d * c * (f * f) as f64;
+            if k + 1 < taps {
+                flops += 2.0 * 9.0 * c * c * area;
+            }
+        }
+        flops += 2.0 * 9.0 * c * (c / 2.0) * tokens * (factors[0] * factors[0]) as f64;
+        flops += 2.0 * s * (c / 2.0 * 32.0 + 32.0 * (3 + config.point_features) as f64);
+        flops += 2.0 * s * point_map_channels(config) as f64 * d;
+    }
+    if config.gs_head {
+        flops += 2.0 * tokens * d * GAUSSIAN_CHANNELS as f64 * p2;
+    }
+    flops
 }
 
 /// Forward FLOPs of one block's attention with `tokens` tokens (see the module docs).
@@ -99,12 +208,14 @@ impl FlopCounts {
             .map(|&k| attention_flops(config, k, tokens))
             .sum();
         let nvs_head = 2.0 * per_image * d * 3.0 * p2;
+        let geometry = geometry_flops(config, (height * width) as f64);
         Self {
-            total: tokenizer + projections + attention + nvs_head,
+            total: tokenizer + projections + attention + nvs_head + geometry,
             tokenizer,
             projections,
             attention,
             nvs_head,
+            geometry,
         }
     }
 }
@@ -221,7 +332,24 @@ mod tests {
         // Tokenizer: (9 + 6) x 64 x 768 + LayerNorm 768; head: 768 + 768 x 192.
         assert_eq!(counts.tokenizer, 737_280 + 768);
         assert_eq!(counts.nvs_head, 768 + 147_456);
-        assert_eq!(counts.total, 255_750_144);
+        let backbone = counts.tokenizer + counts.stage_one + counts.stage_three + counts.nvs_head;
+        assert_eq!(backbone, 255_750_144);
+        // Geometry: the triplane (3 planes of 32 x 256 x 256), the injection (two zero
+        // convolutions p^2 C -> d with bias, three gates) and the 3DGS head (LN + d x 12 p^2).
+        assert_eq!(counts.triplane, 3 * 32 * 256 * 256);
+        assert_eq!(
+            counts.injection,
+            (64 * 32 + 1) * 768 + (64 * 18 + 1) * 768 + 3
+        );
+        assert_eq!(counts.gs_head, 768 + 768 * 12 * 64);
+        assert_eq!(
+            counts.total,
+            backbone
+                + counts.injection
+                + counts.smplx_branch
+                + counts.point_branch
+                + counts.gs_head
+        );
 
         let kinds = vec![AttentionKind::Full; 36];
         let info = ModelInfo::new(&paper, &kinds, 512);
@@ -231,7 +359,7 @@ mod tests {
         let t = 8192.0f64;
         assert_eq!(info.blocks[0].attention_flops, 4.0 * t * t * 768.0);
         let json = serde_json::to_value(&info).unwrap();
-        assert_eq!(json["parameters"], 255_750_144);
+        assert_eq!(json["parameters"], counts.total);
         assert_eq!(json["blocks"].as_array().unwrap().len(), 36);
         assert_eq!(json["blocks"][35]["attention"], "full");
     }
@@ -250,7 +378,7 @@ mod tests {
         let f = info.flops_per_frame;
         assert_eq!(
             f.total,
-            f.tokenizer + f.projections + f.attention + f.nvs_head
+            f.tokenizer + f.projections + f.attention + f.nvs_head + f.geometry
         );
         // Projections and MLP: 24 T d^2 per block for an MLP ratio of 4.
         assert_eq!(f.projections, 6.0 * 24.0 * 128.0 * 64.0 * 64.0);

@@ -1,28 +1,45 @@
-//! The cascade (paper Sec. 3.2): tokenizer -> stage I -> injection point -> stage III -> NVS
-//! head.
+//! The cascade (paper Sec. 3.2): tokenizer -> stage I -> geometry branches and injection ->
+//! stage III -> NVS decoder and 3DGS head.
 
 use burn::module::Module;
 use burn::tensor::{Device, Tensor};
+use prism_data::dataset::PrismBatch;
 
 use crate::attention::AttentionKind;
 use crate::block::{PrismBlock, PrismBlockConfig};
+use crate::body_model::load_body_model;
 use crate::config::PrismConfig;
+use crate::dpt::dpt_taps;
+use crate::error::ModelError;
+use crate::gaussian_head::{GaussianHead, GaussianHeadConfig, GaussianOutput};
 use crate::head::{NvsHead, NvsHeadConfig};
+use crate::injection::{Injection, InjectionConfig};
+use crate::point_branch::{PointBranch, PointBranchConfig, PointOutput};
+use crate::smplx_branch::{SmplxBranch, SmplxBranchConfig, SmplxOutput};
 use crate::stages::{HiddenStates, StageOne, StageThree};
 use crate::tokenizer::{Tokenizer, TokenizerConfig};
+use crate::views::Views;
 
 impl PrismConfig {
     /// Builds the model with fresh weights: every projection `N(0, init_std)`, the blocks'
-    /// output projections `N(0, init_std / sqrt(2 (M + N)))`, norms' gains 1.
+    /// output projections `N(0, init_std / sqrt(2 (M + N)))`, norms' gains 1; the geometry
+    /// parts the config enables, with the injection's zero convolutions at zero.
     ///
     /// # Panics
-    /// If the config is invalid; check it first with [`PrismConfig::validate`] (which
-    /// [`crate::load_config`] does).
+    /// If the config is invalid or its body model cannot be loaded; [`PrismConfig::try_init`]
+    /// returns these as errors.
     pub fn init(&self, device: &Device) -> Prism {
-        if let Err(err) = self.validate() {
-            panic!("cannot build the model: {err}");
-        }
-        let kinds = self.attention_kinds().expect("validated");
+        self.try_init(device)
+            .unwrap_or_else(|err| panic!("cannot build the model: {err}"))
+    }
+
+    /// [`PrismConfig::init`], with an invalid config or an unreadable body model as an error.
+    ///
+    /// # Errors
+    /// [`ModelError::Invalid`] (see [`PrismConfig::validate`]) or [`ModelError::Body`].
+    pub fn try_init(&self, device: &Device) -> Result<Prism, ModelError> {
+        self.validate()?;
+        let kinds = self.attention_kinds()?;
         let block = |kind: AttentionKind| {
             PrismBlockConfig::new(self.width, self.heads)
                 .with_mlp_ratio(self.mlp_ratio)
@@ -35,7 +52,37 @@ impl PrismConfig {
                 .init(device)
         };
         let (one, three) = kinds.split_at(self.stage_one_blocks);
-        Prism {
+        let smplx_branch = if self.smplx_branch {
+            let body = load_body_model(&self.body_model)?;
+            Some(
+                SmplxBranchConfig::new(
+                    self.width,
+                    self.smplx_width,
+                    self.triplane_resolution,
+                    self.triplane_channels,
+                    self.body_height,
+                    self.depth_prior,
+                )
+                .with_init_std(self.init_std)
+                .with_norm_eps(self.norm_eps)
+                .init(&body, device),
+            )
+        } else {
+            None
+        };
+        let point_branch = self.point_branch.then(|| {
+            PointBranchConfig::new(
+                self.width,
+                dpt_taps(self.stage_one_blocks),
+                self.patch_size,
+                self.point_width,
+                self.point_features,
+                self.depth_prior,
+            )
+            .with_init_std(self.init_std)
+            .init(device)
+        });
+        Ok(Prism {
             tokenizer: TokenizerConfig::new(self.width, self.patch_size)
                 .with_init_std(self.init_std)
                 .with_norm_eps(self.norm_eps)
@@ -43,6 +90,13 @@ impl PrismConfig {
             stage_one: StageOne {
                 blocks: one.iter().map(|&k| block(k)).collect(),
             },
+            injection: InjectionConfig::new(self.width, self.patch_size)
+                .with_smpl_channels(self.smplx_branch.then_some(self.triplane_channels))
+                .with_pts_channels(point_branch.as_ref().map(PointBranch::feature_channels))
+                .with_gate_init(self.gate_init)
+                .init(device),
+            smplx_branch,
+            point_branch,
             stage_three: StageThree {
                 blocks: three.iter().map(|&k| block(k)).collect(),
             },
@@ -50,7 +104,13 @@ impl PrismConfig {
                 .with_init_std(self.init_std)
                 .with_norm_eps(self.norm_eps)
                 .init(device),
-        }
+            gs_head: self.gs_head.then(|| {
+                GaussianHeadConfig::new(self.width, self.patch_size, self.depth_prior)
+                    .with_init_std(self.init_std)
+                    .with_norm_eps(self.norm_eps)
+                    .init(device)
+            }),
+        })
     }
 }
 
@@ -66,6 +126,12 @@ pub struct PrismOutput {
     pub t_out: Tensor<3>,
     /// `T_s`, the number of source tokens at the front of the sequence.
     pub source_tokens: usize,
+    /// The SMPL-X branch's prediction (parameters, position map, `F_smpl`), when enabled.
+    pub smplx: Option<SmplxOutput>,
+    /// The point branch's prediction (points, confidence, `F_pts`), when enabled.
+    pub points: Option<PointOutput>,
+    /// The 3DGS head's Gaussians and `I_gs`, when enabled.
+    pub gaussians: Option<GaussianOutput>,
 }
 
 impl PrismOutput {
@@ -84,18 +150,28 @@ impl PrismOutput {
 }
 
 /// The PrismMirror network: `T_in = Tokenizer(I_s, P_s, P_t)`, `T_mid = StageOne(T_in)`,
-/// `T'_mid = inject(T_mid, T_in)`, `T_out = StageThree(T'_mid)`,
-/// `I_t = NvsHead(target tokens of T_out)`.
+/// the geometry branches on `T_mid` (and stage-I taps), `T'_mid = Injection(T_mid, T_in,
+/// F_smpl, F_pts)`, `T_out = StageThree(T'_mid)`, `I_t = NvsHead(target tokens of T_out)` and
+/// `I_gs = GaussianHead(source tokens of T_out)`.
 #[derive(Module, Debug)]
 pub struct Prism {
     /// Patches and rays to `T_in`.
     pub tokenizer: Tokenizer,
     /// The `M` encoder blocks.
     pub stage_one: StageOne,
+    /// Zero convolutions and gates between the stages.
+    pub injection: Injection,
+    /// The SMPL-X branch, when enabled.
+    pub smplx_branch: Option<SmplxBranch>,
+    /// The point branch, when enabled.
+    pub point_branch: Option<PointBranch>,
     /// The `N` decoder blocks.
     pub stage_three: StageThree,
     /// The NVS decoder.
     pub nvs_head: NvsHead,
+    /// The 3DGS head, when enabled. `I_gs` is a training signal (and a PLY export): for
+    /// timing or serving the NVS output alone, set this to `None` and the forward pass skips it.
+    pub gs_head: Option<GaussianHead>,
 }
 
 impl Prism {
@@ -142,27 +218,30 @@ impl Prism {
         }
     }
 
-    /// The injection point between stage I and stage III (paper Stage II).
-    ///
-    /// `T'_mid = T_mid + g_smpl F_smpl + g_pts F_pts + g_res T_in`; the geometry branches are
-    /// not part of this model yet, so this is the identity `T'_mid = T_mid` (which is also what
-    /// the zero-initialised injection computes at initialisation).
-    pub fn inject(&self, t_mid: Tensor<3>, _t_in: &Tensor<3>) -> Tensor<3> {
-        t_mid
+    /// Whether a geometry part (SMPL-X branch, point branch or 3DGS head) is built: then the
+    /// forward pass needs the cameras ([`Prism::forward_views`]).
+    pub fn has_geometry(&self) -> bool {
+        self.smplx_branch.is_some() || self.point_branch.is_some() || self.gs_head.is_some()
     }
 
-    /// The forward pass on a batch of (source, target) pairs.
-    ///
-    /// - `source_image`: `[B, 3, H, W]` in [0, 1];
-    /// - `source_rays`, `target_rays`: Plücker rays `[B, 6, H, W]`;
-    /// - `hidden_layers`: global block indices (`0..M+N`) whose outputs to return in
-    ///   [`PrismOutput::hidden`] (empty for none).
-    ///
-    /// `H` and `W` must be multiples of the patch size; any such size works (there is no
-    /// positional embedding).
+    /// The injection point between stage I and stage III (paper Stage II, Eq. 4):
+    /// `T'_mid = T_mid + g_smpl F_smpl + g_pts F_pts + g_res T_in` (see [`Injection`]).
+    pub fn inject(
+        &self,
+        t_mid: Tensor<3>,
+        t_in: &Tensor<3>,
+        f_smpl: Option<Tensor<4>>,
+        f_pts: Option<Tensor<4>>,
+    ) -> Tensor<3> {
+        self.injection.forward(t_mid, t_in, f_smpl, f_pts)
+    }
+
+    /// The forward pass of a model without geometry parts (the backbone and the NVS decoder):
+    /// see [`Prism::forward_views`], which this calls without views.
     ///
     /// # Panics
-    /// On mismatched shapes or a hidden layer index `>= M + N`.
+    /// If the model has a geometry part (they need the cameras: call
+    /// [`Prism::forward_views`]), on mismatched shapes or a hidden layer index `>= M + N`.
     pub fn forward(
         &self,
         source_image: Tensor<4>,
@@ -170,22 +249,133 @@ impl Prism {
         target_rays: Tensor<4>,
         hidden_layers: &[usize],
     ) -> PrismOutput {
+        self.forward_impl(source_image, source_rays, target_rays, None, hidden_layers)
+    }
+
+    /// The forward pass on a batch of (source, target) pairs.
+    ///
+    /// - `source_image`: `[B, 3, H, W]` in [0, 1];
+    /// - `source_rays`, `target_rays`: Plücker rays `[B, 6, H, W]`;
+    /// - `views`: the cameras of the pairs and the background (what the geometry parts need);
+    /// - `hidden_layers`: global block indices (`0..M+N`) whose outputs to return in
+    ///   [`PrismOutput::hidden`] (empty for none).
+    ///
+    /// `H` and `W` must be multiples of the patch size; any such size works (there is no
+    /// positional embedding).
+    ///
+    /// # Panics
+    /// On mismatched shapes, views for another batch size, or a hidden layer index
+    /// `>= M + N`.
+    pub fn forward_views(
+        &self,
+        source_image: Tensor<4>,
+        source_rays: Tensor<4>,
+        target_rays: Tensor<4>,
+        views: &Views,
+        hidden_layers: &[usize],
+    ) -> PrismOutput {
+        self.forward_impl(
+            source_image,
+            source_rays,
+            target_rays,
+            Some(views),
+            hidden_layers,
+        )
+    }
+
+    /// [`Prism::forward_views`] on a dataset batch: its source images and rays, target rays and
+    /// cameras, with the dataset's `background`.
+    pub fn forward_batch(
+        &self,
+        batch: &PrismBatch,
+        background: [f32; 3],
+        hidden_layers: &[usize],
+    ) -> PrismOutput {
+        self.forward_views(
+            batch.source_image.clone(),
+            batch.source_rays.clone(),
+            batch.target_rays.clone(),
+            &Views::of_batch(batch, background),
+            hidden_layers,
+        )
+    }
+
+    fn forward_impl(
+        &self,
+        source_image: Tensor<4>,
+        source_rays: Tensor<4>,
+        target_rays: Tensor<4>,
+        views: Option<&Views>,
+        hidden_layers: &[usize],
+    ) -> PrismOutput {
         let num_blocks = self.num_blocks();
         if let Some(bad) = hidden_layers.iter().find(|&&i| i >= num_blocks) {
             panic!("hidden layer {bad} requested from a model of {num_blocks} blocks");
         }
+        let views = match views {
+            Some(views) => {
+                views.check(source_image.dims()[0]);
+                Some(views)
+            }
+            None if self.has_geometry() => panic!(
+                "this model has geometry parts (SMPL-X branch, point branch or 3DGS head) that \
+                 need the cameras: call Prism::forward_views"
+            ),
+            None => None,
+        };
         let [_, _, height, width] = target_rays.dims();
         let p = self.tokenizer.patch_size();
-        let source_tokens = {
-            let [_, _, h, w] = source_image.dims();
-            (h / p) * (w / p)
-        };
-        let mut hidden = HiddenStates::new(hidden_layers);
+        let [_, _, source_height, source_width] = source_image.dims();
+        let grid = (source_height / p, source_width / p);
+        let source_tokens = grid.0 * grid.1;
+
+        // Stage I, with the point branch's taps.
+        let taps = self
+            .point_branch
+            .as_ref()
+            .map(|branch| branch.taps().to_vec())
+            .unwrap_or_default();
+        let wanted: Vec<usize> = hidden_layers.iter().chain(&taps).copied().collect();
+        let mut hidden = HiddenStates::new(&wanted);
         let t_in = self
             .tokenizer
-            .forward(source_image, source_rays, target_rays);
+            .forward(source_image, source_rays.clone(), target_rays);
         let t_mid = self.stage_one.forward(t_in.clone(), &mut hidden);
-        let t_mid = self.inject(t_mid, &t_in);
+        let tapped: Vec<Tensor<3>> = taps
+            .iter()
+            .map(|&i| hidden.state(i).expect("stage-I taps are recorded"))
+            .collect();
+
+        // Stage II: the geometry branches and the injection.
+        let source_of = |t: &Tensor<3>| t.clone().narrow(1, 0, source_tokens);
+        let smplx = self.smplx_branch.as_ref().map(|branch| {
+            branch.forward(
+                source_of(&t_mid),
+                views.expect("checked"),
+                height,
+                width,
+                (source_height, source_width),
+            )
+        });
+        let points = self.point_branch.as_ref().map(|branch| {
+            let taps: Vec<Tensor<3>> = tapped.iter().map(source_of).collect();
+            branch.forward(
+                &taps,
+                &source_rays,
+                views.expect("checked"),
+                grid,
+                height,
+                width,
+            )
+        });
+        let t_mid = self.inject(
+            t_mid,
+            &t_in,
+            smplx.as_ref().map(|s| s.features.clone()),
+            points.as_ref().map(|p| p.features.clone()),
+        );
+
+        // Stage III and the heads.
         let t_out = self
             .stage_three
             .forward(t_mid, self.stage_one.blocks.len(), &mut hidden);
@@ -194,11 +384,25 @@ impl Prism {
             .clone()
             .narrow(1, source_tokens, total - source_tokens);
         let image = self.nvs_head.forward(target, height, width);
+        let mut hidden = hidden.into_vec();
+        hidden.truncate(hidden_layers.len());
+        let gaussians = self.gs_head.as_ref().map(|head| {
+            head.forward(
+                source_of(&t_out),
+                &source_rays,
+                views.expect("checked"),
+                height,
+                width,
+            )
+        });
         PrismOutput {
             image,
-            hidden: hidden.into_vec(),
+            hidden,
             t_out,
             source_tokens,
+            smplx,
+            points,
+            gaussians,
         }
     }
 }
@@ -208,7 +412,7 @@ mod tests {
     use super::*;
     use crate::config::load_config;
     use crate::info::ParameterCounts;
-    use crate::test_util::{max_abs_diff, ndarray, parameters, values};
+    use crate::test_util::{inputs, max_abs_diff, ndarray, parameters, tiny_with, values};
     use burn::module::{ModuleVisitor, Param};
     use burn::tensor::Distribution;
     use burn::tensor::Gradients;
@@ -219,18 +423,9 @@ mod tests {
         load_config(path).unwrap().model
     }
 
-    /// A batch of `b` random (source image, source rays, target rays) at `h x w`.
-    fn inputs(b: usize, h: usize, w: usize, device: &Device) -> [Tensor<4>; 3] {
-        device.seed(11);
-        [
-            Tensor::random([b, 3, h, w], Distribution::Uniform(0.0, 1.0), device),
-            Tensor::random([b, 6, h, w], Distribution::Normal(0.0, 1.0), device),
-            Tensor::random([b, 6, h, w], Distribution::Normal(0.0, 1.0), device),
-        ]
-    }
-
-    fn forward(model: &Prism, x: &[Tensor<4>; 3], hidden: &[usize]) -> PrismOutput {
-        model.forward(x[0].clone(), x[1].clone(), x[2].clone(), hidden)
+    fn forward(model: &Prism, x: &([Tensor<4>; 3], Views), hidden: &[usize]) -> PrismOutput {
+        let ([image, source, target], views) = x;
+        model.forward_views(image.clone(), source.clone(), target.clone(), views, hidden)
     }
 
     #[test]
@@ -251,13 +446,30 @@ mod tests {
         let image = values(&out.image);
         assert!(image.iter().all(|&v| v > 0.0 && v < 1.0), "sigmoid output");
 
+        // The geometry parts' outputs.
+        let smplx = out.smplx.as_ref().expect("SMPL-X branch");
+        assert_eq!(smplx.betas.dims(), [2, 10]);
+        assert_eq!(smplx.rotations.dims(), [2, 55, 3, 3]);
+        assert_eq!(smplx.expression.dims(), [2, 10]);
+        assert_eq!(smplx.camera.dims(), [2, 3]);
+        assert_eq!(smplx.features.dims(), [2, 32, 32, 48]);
+        assert_eq!(smplx.position_map.dims(), [2, 3, 32, 48]);
+        let points = out.points.as_ref().expect("point branch");
+        assert_eq!(points.points.dims(), [2, 3, 32, 48]);
+        assert_eq!(points.confidence.dims(), [2, 1, 32, 48]);
+        assert_eq!(points.features.dims(), [2, 8 + 2, 32, 48]);
+        assert!(values(&points.confidence).iter().all(|&c| c > 1.0));
+        let gs = out.gaussians.as_ref().expect("3DGS head");
+        assert_eq!(gs.image.dims(), [2, 3, 32, 48]);
+        assert_eq!(gs.gaussians.means.dims(), [2, 32 * 48, 3]);
+
         let asked = [5, 1, 5];
         let with_hidden = forward(&model, &x, &asked);
         assert_eq!(with_hidden.hidden.len(), 3);
         for state in &with_hidden.hidden {
             assert_eq!(state.dims(), [2, 48, 64]);
         }
-        // Block M + N - 1 is the last one: its output is T_out (the injection is the identity).
+        // Block M + N - 1 is the last one: its output is T_out.
         assert_eq!(values(&with_hidden.hidden[0]), values(&with_hidden.t_out));
         assert_eq!(values(&with_hidden.hidden[2]), values(&with_hidden.t_out));
         // Block 1 (the last of stage I) gives T_mid, which the stage-III blocks then change.
@@ -275,9 +487,18 @@ mod tests {
     }
 
     #[test]
+    #[should_panic(expected = "forward_views")]
+    fn geometry_needs_the_cameras() {
+        let device = ndarray();
+        let model = config("tiny").init(&device);
+        let ([a, b, c], _) = inputs(1, 16, 16, &device);
+        model.forward(a, b, c, &[]);
+    }
+
+    #[test]
     fn switching_attention_keeps_parameters_bit_identical() {
         let device = ndarray();
-        let mut model = config("tiny").init(&device);
+        let mut model = tiny_with(false, false, false).init(&device);
         let before = parameters(&model);
         let x = inputs(1, 32, 32, &device);
         let full = values(&forward(&model, &x, &[]).image);
@@ -296,6 +517,9 @@ mod tests {
         assert!(max_abs_diff(&full, &hybrid) > 1e-6);
         model.set_attention_kinds(&[F; 6]);
         assert_eq!(values(&forward(&model, &x, &[]).image), full);
+        // A model without geometry also runs without views.
+        let ([a, b, c], _) = x;
+        assert_eq!(values(&model.forward(a, b, c, &[]).image), full);
     }
 
     /// Every float parameter's gradient, by path.
@@ -326,32 +550,218 @@ mod tests {
         collect.out
     }
 
+    /// A stand-in objective touching every output: image MSE for I_t and I_gs, squared
+    /// parameters of the SMPL-X branch, points and confidence, and a term on a hidden state.
+    fn all_outputs_loss(out: &PrismOutput, target: &Tensor<4>) -> Tensor<1> {
+        let mut loss = (out.image.clone() - target.clone()).powi_scalar(2).mean()
+            + out.hidden[0].clone().powi_scalar(2).mean() * 1e-3;
+        if let Some(s) = &out.smplx {
+            loss = loss
+                + s.betas.clone().powi_scalar(2).mean()
+                + s.expression.clone().powi_scalar(2).mean()
+                + s.rotations.clone().powi_scalar(2).mean()
+                + s.camera.clone().powi_scalar(2).mean();
+        }
+        if let Some(p) = &out.points {
+            loss = loss + p.points.clone().mean() + p.confidence.clone().mean();
+        }
+        if let Some(g) = &out.gaussians {
+            loss = loss + (g.image.clone() - target.clone()).powi_scalar(2).mean();
+        }
+        loss
+    }
+
+    fn is_zero_at_init(name: &str) -> bool {
+        // Behind the zero convolutions: the gates of the branches see a zero map, the triplane
+        // a zero weight.
+        name.starts_with("injection.gate_smpl")
+            || name.starts_with("injection.gate_pts")
+            || name.starts_with("smplx_branch.triplane")
+    }
+
     #[test]
-    fn every_parameter_gets_a_finite_nonzero_gradient() {
+    fn every_parameter_gets_a_finite_gradient_nonzero_where_expected() {
         use AttentionKind::{Full as F, Linear as L};
         let device = ndarray().autodiff();
-        for kinds in [[F; 6], [L, F, L, L, F, F]] {
+        for (kinds, geometry) in [([F; 6], false), ([L, F, L, L, F, F], true)] {
             device.seed(3);
-            let mut model = config("tiny").init(&device);
+            let mut model = tiny_with(geometry, geometry, geometry).init(&device);
             model.set_attention_kinds(&kinds);
             let x = inputs(2, 32, 32, &device);
             let target =
                 Tensor::<4>::random([2, 3, 32, 32], Distribution::Uniform(0.0, 1.0), &device);
             let out = forward(&model, &x, &[2]);
-            // An image loss plus a term on a hidden state, as distillation uses.
-            let loss = (out.image - target).powi_scalar(2).mean()
-                + out.hidden[0].clone().powi_scalar(2).mean() * 1e-3;
-            let grads = loss.backward();
+            let grads = all_outputs_loss(&out, &target).backward();
             let all = gradients(&model, &grads);
-            assert_eq!(all.len(), 3 + 6 * 8 + 2, "parameter tensors");
+            if !geometry {
+                assert_eq!(
+                    all.len(),
+                    3 + 6 * 8 + 2 + 1,
+                    "parameter tensors (with g_res)"
+                );
+            }
             for (name, grad) in all {
                 let grad = grad.unwrap_or_else(|| panic!("{kinds:?}: {name} has no gradient"));
                 assert!(
                     grad.iter().all(|g| g.is_finite()),
                     "{kinds:?}: {name} not finite"
                 );
-                assert!(grad.iter().any(|&g| g != 0.0), "{kinds:?}: {name} is zero");
+                let nonzero = grad.iter().any(|&g| g != 0.0);
+                assert_eq!(nonzero, !is_zero_at_init(&name), "{kinds:?}: {name}");
             }
+        }
+    }
+
+    #[test]
+    fn initialisation_equals_the_plain_backbone_bit_for_bit() {
+        let device = ndarray();
+        device.seed(4);
+        let model = config("tiny").init(&device);
+        assert!(model.has_geometry());
+        let x = inputs(2, 32, 32, &device);
+        let out = forward(&model, &x, &[]);
+        // The plain backbone: tokenizer, stage I straight into stage III, NVS decoder.
+        let ([image, source, target], _) = x;
+        let t_in = model.tokenizer.forward(image, source, target);
+        let mut hidden = HiddenStates::new(&[]);
+        let t_mid = model.stage_one.forward(t_in, &mut hidden);
+        let t_out = model.stage_three.forward(t_mid, 2, &mut hidden);
+        let plain = model
+            .nvs_head
+            .forward(t_out.clone().narrow(1, 16, 16), 32, 32);
+        let bits = |t: &Tensor<4>| values(t).iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&out.image), bits(&plain));
+        assert_eq!(
+            values(&out.t_out)
+                .iter()
+                .map(|v| v.to_bits())
+                .collect::<Vec<_>>(),
+            values(&t_out)
+                .iter()
+                .map(|v| v.to_bits())
+                .collect::<Vec<_>>()
+        );
+        // The branches did run and produce nonzero features.
+        let f = values(&out.smplx.as_ref().unwrap().features);
+        assert!(f.iter().any(|&v| v != 0.0), "F_smpl is all zero");
+        let f = values(&out.points.as_ref().unwrap().features);
+        assert!(f.iter().any(|&v| v != 0.0), "F_pts is all zero");
+    }
+
+    /// Gives the zero convolutions random weights (as after some training).
+    fn trained_injection(model: Prism, device: &Device) -> Prism {
+        let mut model = model;
+        let randomise = |conv: &mut Option<crate::injection::ZeroConv>| {
+            if let Some(conv) = conv {
+                let [i, o] = conv.linear.weight.dims();
+                conv.linear.weight = Param::from_tensor(Tensor::random(
+                    [i, o],
+                    Distribution::Normal(0.0, 0.05),
+                    device,
+                ));
+            }
+        };
+        randomise(&mut model.injection.smpl_conv);
+        randomise(&mut model.injection.pts_conv);
+        model
+    }
+
+    #[test]
+    fn with_the_injection_open_gradients_reach_the_geometry_branches() {
+        let device = ndarray().autodiff();
+        device.seed(6);
+        let model = trained_injection(config("tiny").init(&device), &device);
+        let x = inputs(2, 32, 32, &device);
+        let target = Tensor::<4>::random([2, 3, 32, 32], Distribution::Uniform(0.0, 1.0), &device);
+        let out = forward(&model, &x, &[]);
+        // The NVS image alone: every geometry gradient comes through the injection.
+        let grads = (out.image - target).powi_scalar(2).mean().backward();
+        let all = gradients(&model, &grads);
+        let norm = |prefix: &str| -> f32 {
+            all.iter()
+                .filter(|(name, _)| name.starts_with(prefix))
+                .map(|(name, g)| {
+                    let g = g
+                        .as_ref()
+                        .unwrap_or_else(|| panic!("{name} has no gradient"));
+                    g.iter().map(|v| v * v).sum::<f32>()
+                })
+                .sum::<f32>()
+                .sqrt()
+        };
+        for part in [
+            "smplx_branch.triplane",
+            "smplx_branch.regressor_out",
+            "smplx_branch.adapter",
+            "point_branch.dpt.reassemble",
+            "point_branch.dpt.head_out",
+            "injection.gate_smpl",
+            "injection.gate_pts",
+            "injection.gate_res",
+        ] {
+            let n = norm(part);
+            assert!(n > 0.0 && n.is_finite(), "{part}: gradient norm {n}");
+        }
+    }
+
+    #[test]
+    fn a_zero_gate_behind_a_zero_convolution_never_trains() {
+        // Why gate_init is not 0: both gradients vanish exactly.
+        let device = ndarray().autodiff();
+        let mut config = tiny_with(true, false, false);
+        config.gate_init = 0.0;
+        let model = config.init(&device);
+        let x = inputs(1, 32, 32, &device);
+        let out = forward(&model, &x, &[]);
+        let grads = out.image.mean().backward();
+        let all = gradients(&model, &grads);
+        let get = |name: &str| {
+            all.iter()
+                .find(|(n, _)| n.starts_with(name))
+                .and_then(|(_, g)| g.clone())
+                .unwrap_or_else(|| panic!("{name}"))
+        };
+        assert!(get("injection.gate_smpl").iter().all(|&g| g == 0.0));
+        assert!(
+            get("injection.smpl_conv.linear.weight")
+                .iter()
+                .all(|&g| g == 0.0)
+        );
+        // With gate_init = 1 (the shipped configs) the convolution learns at once.
+        config.gate_init = 1.0;
+        let model = config.init(&device);
+        let out = forward(&model, &x, &[]);
+        let grads = out.image.mean().backward();
+        let all = gradients(&model, &grads);
+        let conv = all
+            .iter()
+            .find(|(n, _)| n.starts_with("injection.smpl_conv.linear.weight"))
+            .and_then(|(_, g)| g.clone())
+            .unwrap();
+        assert!(conv.iter().any(|&g| g != 0.0));
+    }
+
+    #[test]
+    fn ablation_switches_remove_their_parts() {
+        let device = ndarray();
+        for (smplx, points, gs) in [
+            (false, true, true),
+            (true, false, false),
+            (false, false, true),
+        ] {
+            let config = tiny_with(smplx, points, gs);
+            let model = config.init(&device);
+            assert_eq!(model.smplx_branch.is_some(), smplx);
+            assert_eq!(model.injection.smpl_conv.is_some(), smplx);
+            assert_eq!(model.injection.gate_smpl.is_some(), smplx);
+            assert_eq!(model.point_branch.is_some(), points);
+            assert_eq!(model.injection.pts_conv.is_some(), points);
+            assert_eq!(model.gs_head.is_some(), gs);
+            let out = forward(&model, &inputs(1, 16, 16, &device), &[]);
+            assert_eq!(out.smplx.is_some(), smplx);
+            assert_eq!(out.points.is_some(), points);
+            assert_eq!(out.gaussians.is_some(), gs);
+            assert_eq!(ParameterCounts::of(&config).total, model.num_params());
         }
     }
 
@@ -365,7 +775,7 @@ mod tests {
         let on_flex = model.clone().to_device(&flex);
         assert_eq!(on_flex.attention_kinds(), model.attention_kinds());
         let x = inputs(2, 32, 32, &nd);
-        let x_flex = x.clone().map(|t| t.to_device(&flex));
+        let x_flex = (x.0.clone().map(|t| t.to_device(&flex)), x.1.clone());
         let a = forward(&model, &x, &[1, 4]);
         let b = forward(&on_flex, &x_flex, &[1, 4]);
         let err = max_abs_diff(&values(&a.image), &values(&b.image));
@@ -374,6 +784,12 @@ mod tests {
             let err = max_abs_diff(&values(ha), &values(hb));
             assert!(err < 1e-4, "hidden: max difference {err}");
         }
+        let (ga, gb) = (a.gaussians.unwrap(), b.gaussians.unwrap());
+        let err = max_abs_diff(&values(&ga.image), &values(&gb.image));
+        assert!(err < 1e-3, "I_gs: max difference {err}");
+        let (pa, pb) = (a.points.unwrap(), b.points.unwrap());
+        let err = max_abs_diff(&values(&pa.points), &values(&pb.points));
+        assert!(err < 1e-4, "points: max difference {err}");
     }
 
     #[test]
@@ -388,6 +804,28 @@ mod tests {
             assert_eq!(counts.stage_one, model.stage_one.num_params(), "{name}");
             assert_eq!(counts.stage_three, model.stage_three.num_params(), "{name}");
             assert_eq!(counts.nvs_head, model.nvs_head.num_params(), "{name}");
+            assert_eq!(counts.injection, model.injection.num_params(), "{name}");
+            let part = |m: Option<usize>| m.unwrap_or(0);
+            assert_eq!(
+                counts.smplx_branch,
+                part(model.smplx_branch.as_ref().map(Module::num_params)),
+                "{name}"
+            );
+            assert_eq!(
+                counts.point_branch,
+                part(model.point_branch.as_ref().map(Module::num_params)),
+                "{name}"
+            );
+            assert_eq!(
+                counts.gs_head,
+                part(model.gs_head.as_ref().map(Module::num_params)),
+                "{name}"
+            );
+            assert_eq!(
+                counts.triplane,
+                model.smplx_branch.as_ref().unwrap().triplane.num_params(),
+                "{name}"
+            );
         }
     }
 
@@ -414,5 +852,18 @@ mod tests {
         assert!(gamma.iter().all(|&g| g == 1.0));
         assert!(block.attention_norm.beta.is_none(), "no biases");
         assert!(model.tokenizer.source.bias.is_none() && block.attention.qkv.bias.is_none());
+        // The injection: zero convolutions, g_res 0, branch gates at gate_init.
+        let conv = model.injection.smpl_conv.as_ref().unwrap();
+        assert!(values(&conv.linear.weight.val()).iter().all(|&w| w == 0.0));
+        assert!(
+            values(&conv.linear.bias.as_ref().unwrap().val())
+                .iter()
+                .all(|&w| w == 0.0)
+        );
+        assert_eq!(values(&model.injection.gate_res.val()), vec![0.0]);
+        assert_eq!(
+            values(&model.injection.gate_pts.as_ref().unwrap().val()),
+            vec![config.gate_init as f32]
+        );
     }
 }

@@ -51,3 +51,46 @@ pub fn parameters<M: Module>(module: &M) -> Vec<(String, Vec<f32>)> {
     module.visit(&mut collect);
     collect.out
 }
+
+/// Protocol-like views of `b` pairs at `h x w`: the frontal source camera and targets at
+/// several yaw and pitch angles on the 2 m orbit, grey background.
+pub fn views(b: usize, h: usize, w: usize) -> crate::Views {
+    use prism_data::{Camera, Intrinsics};
+    let k = Intrinsics::protocol_default(w as u32, h as u32);
+    let centre = glam::Vec3::new(0.0, 0.9, 0.0);
+    let source = vec![Camera::orbit(0.0, 0.0, 2.0, centre, k); b];
+    let target = (0..b)
+        .map(|i| {
+            Camera::orbit(
+                25.0 - 17.0 * i as f32,
+                10.0 - 8.0 * i as f32,
+                2.0,
+                centre,
+                k,
+            )
+        })
+        .collect();
+    crate::Views::new(source, target, [0.5, 0.5, 0.5])
+}
+
+/// A batch of `b` (source image, source rays, target rays) at `h x w`: a random image and the
+/// rays of [`views`].
+pub fn inputs(b: usize, h: usize, w: usize, device: &Device) -> ([Tensor<4>; 3], crate::Views) {
+    use burn::tensor::Distribution;
+    let views = views(b, h, w);
+    device.seed(11);
+    let image = Tensor::random([b, 3, h, w], Distribution::Uniform(0.0, 1.0), device);
+    let source = prism_data::rays::plucker_rays(&views.source, device);
+    let target = prism_data::rays::plucker_rays(&views.target, device);
+    ([image, source, target], views)
+}
+
+/// The tiny config with the geometry switches set.
+pub fn tiny_with(smplx: bool, points: bool, gs: bool) -> crate::PrismConfig {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/tiny.toml");
+    let mut config = crate::load_config(path).expect("tiny config").model;
+    config.smplx_branch = smplx;
+    config.point_branch = points;
+    config.gs_head = gs;
+    config
+}

@@ -355,7 +355,9 @@ mod tests {
         let mistyped = text.replace("subjects = ", "subjects = \"x\" #");
         let err = parse(&mistyped).unwrap_err().to_string();
         assert!(err.contains("test.toml") && err.contains("line"), "{err}");
-        let zero = regex_replace(&text, "batch_size", "0");
+        // `[distill]` has a `batch_size` too: zero the one of `[train]` only.
+        let (head, train) = text.split_at(text.find("[train]").unwrap());
+        let zero = format!("{head}{}", regex_replace(train, "batch_size", "0"));
         let err = parse(&zero).unwrap_err().to_string();
         assert!(
             err.contains("test.toml") && err.contains("train.batch_size"),

@@ -85,8 +85,8 @@ pub enum TrainError {
     /// Too many steps in a row had a non-finite loss or gradient.
     #[error(
         "training stopped at step {step}: {count} steps in a row had a non-finite loss or \
-         gradient (last: {reason}); lower the learning rates or raise train.grad_clip_norm's \
-         strictness, then resume from the last checkpoint"
+         gradient (last: {reason}); lower the learning rates or train.grad_clip_norm, then \
+         resume from the last checkpoint"
     )]
     NonFinite {
         /// The step that hit the limit (1-based count of steps taken).

@@ -3,9 +3,8 @@
 //!
 //! The split is by module path. A parameter is a head parameter when its path starts with one
 //! of [`HEAD_MODULES`] (a field of [`prism_model::Prism`]); everything else (tokenizer and
-//! transformer blocks) is backbone. Later parts of the model register their modules by adding
-//! their field names to [`HEAD_MODULES`] (the 3DGS head, the SMPL-X and point branches and the
-//! injection's zero-convs and gates).
+//! transformer blocks) is backbone. The parts the paper adds to the LVSM backbone (the heads,
+//! the geometry branches and the injection's zero-convs and gates) are all "heads".
 
 use burn::module::ParamGroup;
 use burn::optim::lr_scheduler::module_lr_scheduler::ModuleLrScheduler;
@@ -13,9 +12,15 @@ use burn::optim::lr_scheduler::module_lr_scheduler::ModuleLrScheduler;
 use crate::schedule::WarmupCosine;
 use crate::step::TRAINEE_FIELD;
 
-/// The fields of [`prism_model::Prism`] whose parameters train with `lr_heads`: the NVS head
-/// now; the 3DGS head and the geometry branches when they exist.
-pub const HEAD_MODULES: &[&str] = &["nvs_head"];
+/// The fields of [`prism_model::Prism`] whose parameters train with `lr_heads`: the NVS and
+/// 3DGS heads, the SMPL-X and point branches and the injection.
+pub const HEAD_MODULES: &[&str] = &[
+    "nvs_head",
+    "gs_head",
+    "smplx_branch",
+    "point_branch",
+    "injection",
+];
 
 /// The regular expression of head parameter paths (paths as Burn's module visitors and
 /// optimizer see them from the [`crate::Trainee`], e.g. `prism.nvs_head.linear.weight`).
@@ -55,6 +60,8 @@ mod tests {
         assert!(!is_head("prism.stage_one.blocks.0.attention.qkv.weight"));
         assert!(!is_head("prism.tokenizer.source.weight"));
         assert!(!is_head("prism.nvs_headx.w"));
+        assert!(is_head("prism.injection.gate_res"));
+        assert!(is_head("prism.point_branch.dpt.out.weight"));
         let group = heads_group();
         let id = burn::module::ParamId::new();
         assert!(group.matches(&id, Some("prism.nvs_head.linear.weight")));
@@ -71,7 +78,13 @@ mod tests {
         use burn::tensor::{Distribution, Tensor};
 
         let path = crate::config::configs_dir().join("tiny.toml");
-        let config = prism_model::load_config(path).unwrap().model;
+        // The backbone and the NVS head only: every parameter then gets a gradient.
+        let config = prism_model::load_config(path)
+            .unwrap()
+            .model
+            .with_smplx_branch(false)
+            .with_point_branch(false)
+            .with_gs_head(false);
         let device = prism_data::BackendKind::Ndarray
             .device()
             .unwrap()
@@ -108,6 +121,9 @@ mod tests {
             assert_eq!(moved, is_head(path), "{path}");
             heads += usize::from(is_head(path));
         }
-        assert_eq!(heads, 2, "the NVS head's norm and linear layer");
+        assert_eq!(
+            heads, 3,
+            "the NVS head's norm and linear layer, the injection's g_res"
+        );
     }
 }

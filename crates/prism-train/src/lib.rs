@@ -11,6 +11,7 @@
 //! - Data: [`DataOrder`] makes each step's samples a pure function of (seed, step), so a
 //!   resumed run continues exactly; the default synthetic dataset lives in [`cache_dir`].
 //! - Teacher: [`TeacherTask`] / [`TeacherLoss`].
+//! - Student: [`StudentTask`] / [`StudentLoss`] with [`student_config`] (distillation).
 
 pub mod cache;
 pub mod checkpoint;
@@ -23,6 +24,7 @@ pub mod log;
 pub mod parallel;
 pub mod schedule;
 pub mod step;
+pub mod student;
 pub mod teacher;
 pub mod trainer;
 pub mod validate;
@@ -41,6 +43,7 @@ pub use log::{METRICS_FILE, MetricsLog, read_metrics};
 pub use parallel::{DataParallel, training_devices};
 pub use schedule::WarmupCosine;
 pub use step::{Prediction, StepLoss, StepValues, TRAINEE_FIELD, TrainItem, Trainee};
+pub use student::{StudentLoss, StudentTask, kinds_letters, student_config};
 pub use teacher::{TeacherLoss, TeacherTask};
-pub use trainer::{RUN_CONFIG_FILE, RunOptions, RunSummary, SAMPLES_DIR, Task, train};
+pub use trainer::{RUN_CONFIG_FILE, RunOptions, RunSummary, SAMPLES_DIR, Task, TaskData, train};
 pub use validate::{ValidationScores, Validator, validation_views};

@@ -61,12 +61,28 @@ pub trait Task {
     ///
     /// # Errors
     /// When the objective cannot be built (missing weights, a config it cannot train).
-    fn step_loss(&self, config: &TrainingConfig, device: &Device) -> Result<Arc<dyn StepLoss>>;
+    fn step_loss(
+        &self,
+        config: &TrainingConfig,
+        data: &TaskData,
+        device: &Device,
+    ) -> Result<Arc<dyn StepLoss>>;
 
     /// Called before every step `step` (0-based) with the model on the main device, e.g. to set
     /// the attention kinds of the distillation schedule. Must be a pure function of the step
-    /// (for exact resumption). The default does nothing.
-    fn before_step(&self, _model: &mut Prism, _step: usize) {}
+    /// (for exact resumption). What it returns (e.g. the blocks it switched) is written to
+    /// `metrics.jsonl` with the step and printed. The default does nothing.
+    fn before_step(&self, _model: &mut Prism, _step: usize) -> Option<Value> {
+        None
+    }
+}
+
+/// What a [`Task`] learns about the training data when its objective is built.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TaskData {
+    /// The dataset's background colour, RGB in `[0, 1]` (`dataset.json`): what the 3DGS head
+    /// composites its render over.
+    pub background: [f32; 3],
 }
 
 /// How to run: the command line's choices.
@@ -210,9 +226,12 @@ pub fn train(config: &TrainingConfig, task: &dyn Task, options: &RunOptions) -> 
     }
 
     let parallel = DataParallel::new(devices.clone());
+    let task_data = TaskData {
+        background: reader.meta().background,
+    };
     let losses = devices
         .iter()
-        .map(|d| task.step_loss(&config, d))
+        .map(|d| task.step_loss(&config, &task_data, d))
         .collect::<Result<Vec<_>>>()?;
     let lpips = Lpips::load_default(options.lpips_weights.as_deref(), &inference)?;
     let validator = Validator::new(
@@ -273,7 +292,14 @@ pub fn train(config: &TrainingConfig, task: &dyn Task, options: &RunOptions) -> 
     while let Some((step, samples)) = prefetcher.next_step() {
         let began = Instant::now();
         let samples = samples?;
-        task.before_step(&mut trainee.prism, step);
+        if let Some(event) = task.before_step(&mut trainee.prism, step) {
+            let mut line = json!({ "step": step });
+            if let (Some(line), Value::Object(fields)) = (line.as_object_mut(), &event) {
+                line.extend(fields.clone());
+            }
+            bar.println(format!("before step {}: {event}", step + 1));
+            log.write(&line)?;
+        }
         let lr = scheduler.step();
         let (lr_backbone, lr_heads) = (backbone.lr_at(step), heads.lr_at(step));
         let shares = split_into_shares(&samples, parallel.devices(), &losses, step);

@@ -8,7 +8,7 @@ use burn::module::Module;
 use burn::tensor::{Device, Tensor};
 use image::{Rgb, RgbImage};
 use prism_data::dataset::{
-    DatasetReader, PrismBatcher, Sample, SampleDataset, SplitKind, TargetSelection,
+    DatasetReader, PrismBatch, PrismBatcher, Sample, SampleDataset, SplitKind, TargetSelection,
 };
 use prism_losses::{LPIPS_MIN_SIDE, Lpips, psnr, ssim};
 use prism_model::Prism;
@@ -38,6 +38,7 @@ pub struct Validator {
     samples: Vec<Sample>,
     subjects: Vec<usize>,
     lpips: Option<Lpips>,
+    background: [f32; 3],
     device: Device,
 }
 
@@ -83,6 +84,7 @@ impl Validator {
             samples,
             subjects,
             lpips: lpips.filter(|_| usable).map(|l| l.to_device(device)),
+            background: reader.meta().background,
             device: device.clone(),
         })
     }
@@ -100,13 +102,12 @@ impl Validator {
     /// Scores `model` (an inference model on the validator's device) on every held-out view;
     /// also returns the sample grid (source, prediction, ground truth per row).
     pub fn validate(&self, model: &Prism) -> (ValidationScores, RgbImage) {
+        // The 3DGS head is a training signal: the validated image is the NVS decoder's.
+        let mut model = model.clone();
+        model.gs_head = None;
         let mut grid_rows = Vec::new();
         let scores = self.score(
-            |batch_source, source_rays, target_rays| {
-                model
-                    .forward(batch_source, source_rays, target_rays, &[])
-                    .image
-            },
+            |batch| model.forward_batch(batch, self.background, &[]).image,
             Some(&mut grid_rows),
         );
         (scores, grid(&grid_rows))
@@ -115,24 +116,19 @@ impl Validator {
     /// The "copy the source view" baseline: the source image taken as the prediction of every
     /// target view.
     pub fn copy_source_baseline(&self) -> ValidationScores {
-        self.score(|source, _, _| source, None)
+        self.score(|batch| batch.source_image.clone(), None)
     }
 
     fn score(
         &self,
-        predict: impl Fn(Tensor<4>, Tensor<4>, Tensor<4>) -> Tensor<4>,
+        predict: impl Fn(&PrismBatch) -> Tensor<4>,
         mut grid_rows: Option<&mut Vec<[Tensor<4>; 3]>>,
     ) -> ValidationScores {
         let mut per_subject: BTreeMap<usize, Vec<[f64; 3]>> = BTreeMap::new();
         let mut index = 0;
         for chunk in self.samples.chunks(VALIDATION_BATCH) {
             let batch = PrismBatcher.batch_samples(chunk, &self.device);
-            let pred = predict(
-                batch.source_image.clone(),
-                batch.source_rays.clone(),
-                batch.target_rays.clone(),
-            )
-            .clamp(0.0, 1.0);
+            let pred = predict(&batch).clamp(0.0, 1.0);
             let gt = batch.target_image.clone();
             let p = psnr(pred.clone(), gt.clone());
             let s = ssim(pred.clone(), gt.clone());

@@ -178,17 +178,17 @@ impl Finger {
 /// The depth of every joint in the SMPL-X tree (root 0), for processing the kinematic chain
 /// level by level.
 pub fn depths(parents: &[Option<usize>]) -> Vec<usize> {
-    let mut depth = vec![0usize; parents.len()];
-    for j in 0..parents.len() {
-        let mut d = 0;
-        let mut k = j;
-        while let Some(p) = parents[k] {
-            d += 1;
-            k = p;
-        }
-        depth[j] = d;
-    }
-    depth
+    (0..parents.len())
+        .map(|j| {
+            let mut d = 0;
+            let mut k = j;
+            while let Some(p) = parents[k] {
+                d += 1;
+                k = p;
+            }
+            d
+        })
+        .collect()
 }
 
 /// The SMPL-X parents as `Option<usize>`.

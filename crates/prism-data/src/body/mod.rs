@@ -15,6 +15,7 @@ mod npz;
 mod params;
 pub mod procedural;
 pub mod rotation;
+mod transform;
 
 pub use error::BodyError;
 pub use joints::{

@@ -10,8 +10,8 @@ use std::io::{BufReader, BufWriter, Read, Seek, Write};
 use std::path::{Path, PathBuf};
 
 use glam::Vec3;
-use npyz::npz::{NpzArchive, NpzWriter};
-use npyz::{DType, NpyFile, Order, TypeChar, WriterBuilder};
+use npyz::npz::NpzArchive;
+use npyz::{DType, NpyFile, Order, TypeChar};
 
 use super::error::BodyError;
 use super::joints::{NUM_BETAS, NUM_EXPRESSION, NUM_JOINTS, NUM_POSE_FEATURES};
@@ -45,7 +45,10 @@ impl<R: Read + Seek> Reader<R> {
                 key: key.to_string(),
                 expected: expected.to_string(),
             }),
-            Err(source) => Err(BodyError::Io { path, source }),
+            Err(source) => Err(BodyError::Io {
+                path,
+                error: source,
+            }),
         }
     }
 
@@ -63,7 +66,7 @@ impl<R: Read + Seek> Reader<R> {
         };
         let io_err = |source| BodyError::Io {
             path: path.clone(),
-            source,
+            error: source,
         };
         let dtype = file.dtype();
         let data: Vec<f32> = match &dtype {
@@ -92,7 +95,7 @@ impl<R: Read + Seek> Reader<R> {
         let order = file.order();
         let io_err = |source| BodyError::Io {
             path: path.clone(),
-            source,
+            error: source,
         };
         let dtype = file.dtype();
         let data: Vec<i64> = match &dtype {
@@ -188,7 +191,7 @@ impl BodyModel {
         let path = path.as_ref();
         let io = |source| BodyError::Io {
             path: path.to_path_buf(),
-            source,
+            error: source,
         };
         let file = File::open(path).map_err(io)?;
         let archive = NpzArchive::new(BufReader::new(file)).map_err(io)?;
@@ -297,7 +300,7 @@ impl BodyModel {
         crate::body::atomic::write_atomic(path, |file| self.write_npz(file)).map_err(|source| {
             BodyError::Io {
                 path: path.to_path_buf(),
-                source,
+                error: source,
             }
         })
     }
@@ -307,73 +310,73 @@ impl BodyModel {
         let j = NUM_JOINTS as u64;
         let options = npyz::zip::write::FileOptions::default()
             .compression_method(npyz::zip::CompressionMethod::Deflated)
+            .compression_level(Some(1))
             .large_file(true);
-        let mut npz = NpzWriter::new(BufWriter::new(file));
+        let mut zip = npyz::zip::ZipWriter::new(BufWriter::new(file));
+        let f32s = |x: &[f32]| x.iter().flat_map(|a| a.to_le_bytes()).collect::<Vec<u8>>();
         let template: Vec<f32> = self.v_template.iter().flat_map(|p| p.to_array()).collect();
-        write_f32(&mut npz, options, "v_template", &[v, 3], &template)?;
-        let faces: Vec<i32> = self.faces.iter().flatten().map(|&i| i as i32).collect();
-        {
-            let mut w = npz
-                .array::<i32>("f", options)?
-                .default_dtype()
-                .shape(&[self.faces.len() as u64, 3])
-                .begin_nd()?;
-            w.extend(faces)?;
-            w.finish()?;
-        }
-        write_f32(
-            &mut npz,
-            options,
-            "shapedirs",
-            &[v, 3, NUM_SHAPE_COEFFS as u64],
-            &self.shapedirs,
-        )?;
-        write_f32(
-            &mut npz,
-            options,
-            "posedirs",
-            &[v, 3, NUM_POSE_FEATURES as u64],
-            &self.posedirs,
-        )?;
-        write_f32(&mut npz, options, "J_regressor", &[j, v], &self.j_regressor)?;
-        write_f32(&mut npz, options, "weights", &[v, j], &self.weights)?;
+        let faces: Vec<u8> = self
+            .faces
+            .iter()
+            .flatten()
+            .flat_map(|&i| (i as i32).to_le_bytes())
+            .collect();
         let mut kintree: Vec<i64> = self
             .parents
             .iter()
             .map(|p| p.map_or(-1, |p| p as i64))
             .collect();
-        kintree.extend((0..NUM_JOINTS as i64).collect::<Vec<_>>());
-        {
-            let mut w = npz
-                .array::<i64>("kintree_table", options)?
-                .default_dtype()
-                .shape(&[2, j])
-                .begin_nd()?;
-            w.extend(kintree)?;
-            w.finish()?;
+        kintree.extend(0..NUM_JOINTS as i64);
+        let kintree: Vec<u8> = kintree.iter().flat_map(|k| k.to_le_bytes()).collect();
+        let arrays: [(&str, &str, Vec<u64>, Vec<u8>); 7] = [
+            ("v_template", "<f4", vec![v, 3], f32s(&template)),
+            ("f", "<i4", vec![self.faces.len() as u64, 3], faces),
+            (
+                "shapedirs",
+                "<f4",
+                vec![v, 3, NUM_SHAPE_COEFFS as u64],
+                f32s(&self.shapedirs),
+            ),
+            (
+                "posedirs",
+                "<f4",
+                vec![v, 3, NUM_POSE_FEATURES as u64],
+                f32s(&self.posedirs),
+            ),
+            ("J_regressor", "<f4", vec![j, v], f32s(&self.j_regressor)),
+            ("weights", "<f4", vec![v, j], f32s(&self.weights)),
+            ("kintree_table", "<i8", vec![2, j], kintree),
+        ];
+        for (key, descr, shape, bytes) in arrays {
+            zip.start_file(npyz::npz::file_name_from_array_name(key), options)
+                .map_err(|e| std::io::Error::other(e.to_string()))?;
+            zip.write_all(&npy_header(descr, &shape))?;
+            zip.write_all(&bytes)?;
         }
-        let writer = npz
-            .zip_writer()
+        let writer = zip
             .finish()
             .map_err(|e| std::io::Error::other(e.to_string()))?;
         writer.into_inner().map_err(|e| e.into_error())
     }
 }
 
-fn write_f32<W: Write + Seek>(
-    npz: &mut NpzWriter<W>,
-    options: npyz::zip::write::FileOptions,
-    key: &str,
-    shape: &[u64],
-    data: &[f32],
-) -> std::io::Result<()> {
-    let mut w = npz
-        .array::<f32>(key, options)?
-        .default_dtype()
-        .shape(shape)
-        .begin_nd()?;
-    w.extend(data.iter().copied())?;
-    w.finish()
+/// The header of a version 1.0 `.npy` file for a C-order array: magic, version, header length
+/// and the header dictionary padded with spaces to a multiple of 64 bytes.
+fn npy_header(descr: &str, shape: &[u64]) -> Vec<u8> {
+    let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
+    let shape = if dims.len() == 1 {
+        format!("({},)", dims[0])
+    } else {
+        format!("({})", dims.join(", "))
+    };
+    let mut dict = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape}, }}");
+    let unpadded = 10 + dict.len() + 1;
+    dict.push_str(&" ".repeat((64 - unpadded % 64) % 64));
+    dict.push('\n');
+    let mut out = b"\x93NUMPY\x01\x00".to_vec();
+    out.extend_from_slice(&(dict.len() as u16).to_le_bytes());
+    out.extend_from_slice(dict.as_bytes());
+    out
 }
 
 #[cfg(test)]

@@ -164,7 +164,7 @@ impl BodyParams {
         let path = path.as_ref();
         let text = std::fs::read_to_string(path).map_err(|source| BodyError::Io {
             path: path.to_path_buf(),
-            source,
+            error: source,
         })?;
         Self::from_json(&text, path)
     }
@@ -187,7 +187,7 @@ impl BodyParams {
         })
         .map_err(|source| BodyError::Io {
             path: path.to_path_buf(),
-            source,
+            error: source,
         })
     }
 

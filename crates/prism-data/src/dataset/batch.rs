@@ -7,6 +7,8 @@ use image::Rgb32FImage;
 
 use super::io::PointMap;
 use super::samples::{Sample, View};
+use crate::body::BodyParams;
+use crate::body::joints::{NUM_BETAS, NUM_EXPRESSION, NUM_JOINTS};
 use crate::camera::Camera;
 use crate::rays::plucker_map;
 
@@ -33,8 +35,60 @@ pub struct PrismBatch {
     pub target_cameras: Vec<Camera>,
     /// Per pair: subject name, target view index, yaw and pitch.
     pub pairs: Vec<PairInfo>,
-    /// Per pair: the subject's `body.json` when it has one.
-    pub bodies: Vec<Option<serde_json::Value>>,
+    /// Per pair: the subject's body-model fit when it has one.
+    pub bodies: Vec<Option<BodyParams>>,
+}
+
+/// The body-model fits of a batch as tensors, one row per pair; rows without a fit are zeros
+/// with `present` 0 (losses mask them out).
+#[derive(Clone, Debug)]
+pub struct BodyTensors {
+    /// Shape coefficients `[P, 10]`.
+    pub betas: Tensor<2>,
+    /// Axis-angle joint rotations `[P, 55, 3]` (SMPL-X order).
+    pub pose: Tensor<3>,
+    /// Expression coefficients `[P, 10]`.
+    pub expression: Tensor<2>,
+    /// Model-to-world scale `[P]`.
+    pub scale: Tensor<1>,
+    /// Model-to-world translation `[P, 3]`.
+    pub transl: Tensor<2>,
+    /// 1 where the pair's subject has a fit, else 0, `[P]`.
+    pub present: Tensor<1>,
+}
+
+impl PrismBatch {
+    /// The fits as tensors on `device` (see [`BodyTensors`]).
+    pub fn body_tensors(&self, device: &Device) -> BodyTensors {
+        let p = self.bodies.len();
+        let rest = BodyParams::rest("none");
+        let mut b = (
+            Vec::new(),
+            Vec::new(),
+            Vec::new(),
+            Vec::new(),
+            Vec::new(),
+            Vec::new(),
+        );
+        for body in &self.bodies {
+            let fit = body.as_ref().unwrap_or(&rest);
+            let on = if body.is_some() { 1.0 } else { 0.0 };
+            b.0.extend(fit.betas.map(|v| v * on));
+            b.1.extend(fit.pose.iter().flatten().map(|v| v * on));
+            b.2.extend(fit.expression.map(|v| v * on));
+            b.3.push(fit.scale * on);
+            b.4.extend(fit.transl.map(|v| v * on));
+            b.5.push(on);
+        }
+        BodyTensors {
+            betas: Tensor::from_data(TensorData::new(b.0, [p, NUM_BETAS]), device),
+            pose: Tensor::from_data(TensorData::new(b.1, [p, NUM_JOINTS, 3]), device),
+            expression: Tensor::from_data(TensorData::new(b.2, [p, NUM_EXPRESSION]), device),
+            scale: Tensor::from_data(TensorData::new(b.3, [p]), device),
+            transl: Tensor::from_data(TensorData::new(b.4, [p, 3]), device),
+            present: Tensor::from_data(TensorData::new(b.5, [p]), device),
+        }
+    }
 }
 
 /// What a row of a [`PrismBatch`] is.

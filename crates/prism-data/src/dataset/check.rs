@@ -2,12 +2,12 @@
 
 use std::path::{Path, PathBuf};
 
-use glam::{Mat3, Vec3};
+use glam::Vec3;
 use rayon::prelude::*;
 
 use super::error::DataError;
 use super::reader::DatasetReader;
-use super::schema::{CameraRecord, files};
+use super::schema::files;
 use crate::protocol::SOURCE_VIEW;
 
 /// One problem found in a dataset.
@@ -110,7 +110,7 @@ fn check_subject(reader: &DatasetReader, name: &str) -> Vec<Problem> {
     let cameras_path = dir.join(files::CAMERAS);
     if let Some(cameras) = &cameras {
         for c in cameras {
-            if let Some(message) = camera_problem(c) {
+            if let Err(message) = c.validate() {
                 problems.push(Problem {
                     path: cameras_path.clone(),
                     message: format!("view {}: {message}", c.index),
@@ -206,33 +206,4 @@ fn check_subject(reader: &DatasetReader, name: &str) -> Vec<Problem> {
         }
     }
     problems
-}
-
-/// Why a camera record is not a sane pinhole camera, if it is not.
-fn camera_problem(c: &CameraRecord) -> Option<String> {
-    if !(c.fx > 0.0 && c.fy > 0.0 && c.fx.is_finite() && c.fy.is_finite()) {
-        return Some(format!(
-            "focal lengths must be positive, found fx {} fy {}",
-            c.fx, c.fy
-        ));
-    }
-    if c.c2w[3] != [0.0, 0.0, 0.0, 1.0] {
-        return Some(format!(
-            "the last row of c2w must be [0, 0, 0, 1], found {:?}",
-            c.c2w[3]
-        ));
-    }
-    let r = Mat3::from_cols_array_2d(&[
-        [c.c2w[0][0], c.c2w[1][0], c.c2w[2][0]],
-        [c.c2w[0][1], c.c2w[1][1], c.c2w[2][1]],
-        [c.c2w[0][2], c.c2w[1][2], c.c2w[2][2]],
-    ]);
-    let err = (r.transpose() * r - Mat3::IDENTITY)
-        .to_cols_array()
-        .iter()
-        .fold(0.0f32, |m, v| m.max(v.abs()));
-    if err > 1e-4 || r.determinant() < 0.0 {
-        return Some("the rotation of c2w is not a proper rotation".into());
-    }
-    None
 }

@@ -15,6 +15,57 @@ use crate::mesh::Mesh;
 use crate::protocol::{SOURCE_VIEW, ViewAngles, ViewingProtocol};
 use crate::raster::{RenderOptions, RenderOutput, render};
 
+/// The renderer of a protocol dataset: the viewing protocol, square images of one resolution
+/// and the renderer's settings, shared by every subject.
+#[derive(Clone, Debug)]
+pub struct ProtocolRenderer {
+    /// The viewing protocol (the paper's).
+    pub protocol: ViewingProtocol,
+    /// Intrinsics of every view.
+    pub intrinsics: Intrinsics,
+    /// Renderer settings.
+    pub options: RenderOptions,
+}
+
+impl ProtocolRenderer {
+    /// The paper's protocol at `resolution` x `resolution` px, composited on `background`, with
+    /// `supersample` x `supersample` samples per pixel.
+    pub fn new(resolution: u32, background: [f32; 3], supersample: u32) -> Self {
+        Self {
+            protocol: ViewingProtocol::default(),
+            intrinsics: Intrinsics::protocol_default(resolution, resolution),
+            options: RenderOptions {
+                supersample,
+                background,
+                ..Default::default()
+            },
+        }
+    }
+
+    /// Renders the protocol's views drawn from `seed` of `mesh` (already placed in the world)
+    /// and writes subject `name` (see [`SubjectRender::write`]).
+    #[allow(clippy::too_many_arguments)]
+    pub fn write<B: Serialize + Sync>(
+        &self,
+        writer: &DatasetWriter,
+        name: &str,
+        seed: u64,
+        mesh: &Mesh,
+        record: &SubjectRecord,
+        body: Option<&B>,
+        on_view: &(dyn Fn() + Sync),
+    ) -> Result<()> {
+        let views = self.protocol.views(seed);
+        SubjectRender {
+            protocol: &self.protocol,
+            views: &views,
+            intrinsics: self.intrinsics,
+            options: &self.options,
+        }
+        .write(writer, name, mesh, record, body, on_view)
+    }
+}
+
 /// What to render a subject with.
 #[derive(Clone, Debug)]
 pub struct SubjectRender<'a> {
@@ -48,12 +99,13 @@ impl SubjectRender<'_> {
             .par_iter()
             .map(|view| {
                 let camera = self.protocol.camera(view, self.intrinsics);
-                let out = render(mesh, &camera, self.options)
-                    .map_err(|e| DataError::invalid(&dir, format!("cannot render view {}: {e}", view.index)))?;
+                let out = render(mesh, &camera, self.options).map_err(|e| {
+                    DataError::invalid(&dir, format!("cannot render view {}: {e}", view.index))
+                })?;
                 let (rgb, mask) = images(&out);
                 subject.write_view(view.index, &rgb, &mask)?;
                 on_view();
-                let points = (view.index == SOURCE_VIEW).then(|| PointMap {
+                let points = (view.index == SOURCE_VIEW).then_some(PointMap {
                     width: out.width as u32,
                     height: out.height as u32,
                     points: out.points,
@@ -67,8 +119,9 @@ impl SubjectRender<'_> {
             cameras.push(camera);
             source_points = source_points.or(points);
         }
-        let points = source_points
-            .ok_or_else(|| DataError::invalid(&dir, "the views do not include the source view 0"))?;
+        let points = source_points.ok_or_else(|| {
+            DataError::invalid(&dir, "the views do not include the source view 0")
+        })?;
         subject.finish(&cameras, &points, record, body)
     }
 }
@@ -77,6 +130,8 @@ impl SubjectRender<'_> {
 fn images(out: &RenderOutput) -> (Rgb32FImage, Mask) {
     let (w, h) = (out.width as u32, out.height as u32);
     let rgb = Rgb32FImage::from_fn(w, h, |x, y| Rgb(out.rgb[out.index(x as usize, y as usize)]));
-    let mask = Mask::from_fn(w, h, |x, y| Luma([out.alpha[out.index(x as usize, y as usize)]]));
+    let mask = Mask::from_fn(w, h, |x, y| {
+        Luma([out.alpha[out.index(x as usize, y as usize)]])
+    });
     (rgb, mask)
 }

@@ -12,6 +12,7 @@ use super::error::{DataError, Result};
 use super::io::{Mask, PointMap};
 use super::reader::DatasetReader;
 use super::schema::{CameraRecord, SplitKind};
+use crate::body::BodyParams;
 use crate::camera::Camera;
 use crate::protocol::{EVAL_TARGETS, SOURCE_VIEW, TRAIN_TARGETS};
 
@@ -62,8 +63,8 @@ pub struct Sample {
     pub targets: Vec<View>,
     /// The source view's world-space point map (zeros off the mask).
     pub points: PointMap,
-    /// The subject's `body.json`, when it has one (parsed by the body-model layer).
-    pub body: Option<serde_json::Value>,
+    /// The subject's body-model fit (`body.json`), when it has one.
+    pub body: Option<BodyParams>,
 }
 
 /// Samples of one split of a dataset, as a Burn dataset.

@@ -54,6 +54,29 @@ pub enum SplitKind {
 }
 
 impl DatasetMeta {
+    /// Whether `other` describes the same dataset settings: everything but the subject list
+    /// and the split, which grow as subjects are written.
+    pub fn same_settings(&self, other: &DatasetMeta) -> bool {
+        let Self {
+            format,
+            version,
+            width,
+            height,
+            background,
+            views,
+            subjects: _,
+            split: _,
+            generator,
+        } = self;
+        *format == other.format
+            && *version == other.version
+            && *width == other.width
+            && *height == other.height
+            && *background == other.background
+            && *views == other.views
+            && *generator == other.generator
+    }
+
     /// The subjects of one split.
     pub fn subjects_of(&self, split: SplitKind) -> &[String] {
         match split {
@@ -66,11 +89,14 @@ impl DatasetMeta {
 /// One entry of `cameras.json` (a JSON array of them, one per view, in view order).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CameraRecord {
-    /// View index.
+    /// View index (may be left out of a single-view file).
+    #[serde(default)]
     pub index: usize,
-    /// Yaw of the view on the protocol's sphere, degrees.
+    /// Yaw of the view on the protocol's sphere, degrees (informational).
+    #[serde(default)]
     pub yaw_deg: f32,
-    /// Pitch of the view, degrees.
+    /// Pitch of the view, degrees (informational).
+    #[serde(default)]
     pub pitch_deg: f32,
     /// Focal length x, pixels.
     pub fx: f32,
@@ -106,7 +132,47 @@ impl CameraRecord {
         }
     }
 
-    /// The camera this record describes.
+    /// Checks that the record is a sane pinhole camera: a non-empty image, positive finite
+    /// focal lengths, a finite principal point, and a rigid `c2w` (proper rotation, last row
+    /// `[0, 0, 0, 1]`).
+    ///
+    /// # Errors
+    /// A message naming the bad value.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.width == 0 || self.height == 0 {
+            return Err(format!("empty image size {}x{}", self.width, self.height));
+        }
+        for (name, v) in [("fx", self.fx), ("fy", self.fy)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("{name} = {v} is not a positive focal length"));
+            }
+        }
+        for (name, v) in [("cx", self.cx), ("cy", self.cy)] {
+            if !v.is_finite() {
+                return Err(format!("{name} = {v} is not finite"));
+            }
+        }
+        if self.c2w.iter().flatten().any(|v| !v.is_finite()) {
+            return Err("c2w has a non-finite entry".into());
+        }
+        if self.c2w[3] != [0.0, 0.0, 0.0, 1.0] {
+            return Err(format!(
+                "the last row of c2w must be [0, 0, 0, 1], found {:?}",
+                self.c2w[3]
+            ));
+        }
+        let r = glam::Mat3::from_mat4(mat4_from_rows(&self.c2w));
+        let off = (r.transpose() * r - glam::Mat3::IDENTITY)
+            .to_cols_array()
+            .iter()
+            .fold(0.0f32, |m, v| m.max(v.abs()));
+        if off > 1e-3 || (r.determinant() - 1.0).abs() > 1e-3 {
+            return Err("c2w is not a rigid camera-to-world transform (its rotation is not a proper rotation)".into());
+        }
+        Ok(())
+    }
+
+    /// The camera this record describes (see [`CameraRecord::validate`] for checking it).
     pub fn camera(&self) -> Camera {
         let k = Intrinsics {
             fx: self.fx,

@@ -1,9 +1,13 @@
-//! Writing datasets: `dataset.json` first (the plan), then each subject staged in a hidden
-//! folder and renamed into place when complete, so that a killed run leaves no half-written
-//! subject and a rerun skips the finished ones.
+//! Writing datasets. `meta` is the plan (every subject that should exist and the split); each
+//! subject is staged in a hidden folder and renamed into place when complete, and `dataset.json`
+//! is rewritten atomically after every subject, listing only the complete subjects of the plan
+//! (in plan order, with the plan's split). So at any moment, even after a killed run or a
+//! subject that failed, the folder is a valid dataset of what it holds, and a rerun with the
+//! same settings skips the finished subjects.
 
 use std::fs;
 use std::path::{Path, PathBuf};
+use std::sync::Mutex;
 
 use image::Rgb32FImage;
 use serde::Serialize;
@@ -12,7 +16,7 @@ use super::error::{DataError, Result};
 use super::io::{
     Mask, PointMap, read_json, write_json, write_mask_png, write_points, write_rgb_png,
 };
-use super::schema::{CameraRecord, DatasetMeta, SubjectRecord, files};
+use super::schema::{CameraRecord, DatasetMeta, Split, SubjectRecord, files};
 
 /// Prefix of the staging folder of a subject being written.
 const STAGING_PREFIX: &str = ".partial-";
@@ -22,31 +26,38 @@ const STAGING_PREFIX: &str = ".partial-";
 pub struct DatasetWriter {
     root: PathBuf,
     meta: DatasetMeta,
+    /// What `dataset.json` listed when the folder was opened (`None` for a new folder).
+    previous: Option<DatasetMeta>,
+    /// Serialises the rewrites of `dataset.json`.
+    publishing: Mutex<()>,
 }
 
 impl DatasetWriter {
-    /// Opens `root` for writing the dataset `meta`, creating it if needed.
+    /// Opens `root` for writing the dataset planned by `meta`, creating it if needed, and
+    /// writes its `dataset.json` (listing the subjects already complete).
     ///
-    /// A folder that already holds a `dataset.json` is continued only if it describes the same
-    /// dataset (same subjects, size, background, generator settings); leftovers of a killed
-    /// run (staging folders) are removed.
+    /// A folder that already holds a `dataset.json` is continued only if it was made with the
+    /// same settings ([`DatasetMeta::same_settings`]: size, background, views, generator); its
+    /// subject list may differ (a run that stopped early, subjects added to the plan).
+    /// Leftovers of a killed run (staging folders) are removed.
     ///
     /// # Errors
-    /// When the folder holds a different dataset, or on I/O errors.
+    /// When the folder holds a dataset with other settings, or on I/O errors.
     pub fn open(root: &Path, meta: DatasetMeta) -> Result<Self> {
         fs::create_dir_all(root).map_err(|e| DataError::io(root, e))?;
         let meta_path = root.join(files::DATASET);
-        if meta_path.exists() {
+        let previous = if meta_path.exists() {
             let existing: DatasetMeta = read_json(&meta_path)?;
-            if existing != meta {
+            if !existing.same_settings(&meta) {
                 return Err(DataError::invalid(
                     &meta_path,
                     "the folder holds a dataset made with other settings; choose another --out or remove it",
                 ));
             }
+            Some(existing)
         } else {
-            write_json(&meta_path, &meta)?;
-        }
+            None
+        };
         for entry in fs::read_dir(root).map_err(|e| DataError::io(root, e))? {
             let entry = entry.map_err(|e| DataError::io(root, e))?;
             if entry
@@ -57,15 +68,52 @@ impl DatasetWriter {
                 fs::remove_dir_all(entry.path()).map_err(|e| DataError::io(entry.path(), e))?;
             }
         }
-        Ok(Self {
+        let writer = Self {
             root: root.to_path_buf(),
             meta,
-        })
+            previous,
+            publishing: Mutex::new(()),
+        };
+        writer.publish()?;
+        Ok(writer)
     }
 
-    /// The dataset's description.
+    /// The dataset's plan: every subject it should hold and their split.
     pub fn meta(&self) -> &DatasetMeta {
         &self.meta
+    }
+
+    /// The `dataset.json` found when the folder was opened, if there was one.
+    pub fn previous(&self) -> Option<&DatasetMeta> {
+        self.previous.as_ref()
+    }
+
+    /// The `dataset.json` of what the folder holds now: the plan restricted to the complete
+    /// subjects, in plan order, each in its planned split.
+    pub fn finished_meta(&self) -> DatasetMeta {
+        let done = |names: &[String]| -> Vec<String> {
+            names.iter().filter(|n| self.is_done(n)).cloned().collect()
+        };
+        DatasetMeta {
+            subjects: done(&self.meta.subjects),
+            split: Split {
+                train: done(&self.meta.split.train),
+                test: done(&self.meta.split.test),
+            },
+            ..self.meta.clone()
+        }
+    }
+
+    /// Rewrites `dataset.json` (atomically) as [`DatasetWriter::finished_meta`]; called when
+    /// the folder is opened and after every finished subject.
+    pub fn publish(&self) -> Result<DatasetMeta> {
+        let _guard = self
+            .publishing
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner());
+        let meta = self.finished_meta();
+        write_json(&self.root.join(files::DATASET), &meta)?;
+        Ok(meta)
     }
 
     /// The dataset folder.
@@ -79,7 +127,7 @@ impl DatasetWriter {
     }
 
     /// Starts writing subject `name` into its staging folder.
-    pub fn begin_subject(&self, name: &str) -> Result<SubjectWriter> {
+    pub fn begin_subject(&self, name: &str) -> Result<SubjectWriter<'_>> {
         let staging = self.root.join(format!("{STAGING_PREFIX}{name}"));
         if staging.exists() {
             fs::remove_dir_all(&staging).map_err(|e| DataError::io(&staging, e))?;
@@ -89,6 +137,7 @@ impl DatasetWriter {
             fs::create_dir_all(&dir).map_err(|e| DataError::io(&dir, e))?;
         }
         Ok(SubjectWriter {
+            dataset: self,
             staging,
             target: self.root.join(name),
         })
@@ -99,12 +148,13 @@ impl DatasetWriter {
 ///
 /// [`finish`]: SubjectWriter::finish
 #[derive(Debug)]
-pub struct SubjectWriter {
+pub struct SubjectWriter<'a> {
+    dataset: &'a DatasetWriter,
     staging: PathBuf,
     target: PathBuf,
 }
 
-impl SubjectWriter {
+impl SubjectWriter<'_> {
     /// Writes view `index`'s RGB image and alpha mask. Safe to call from several threads.
     pub fn write_view(&self, index: usize, rgb: &Rgb32FImage, mask: &Mask) -> Result<()> {
         write_rgb_png(&self.staging.join(files::view_png(files::RGB, index)), rgb)?;
@@ -115,7 +165,7 @@ impl SubjectWriter {
     }
 
     /// Writes the cameras, the source point map, the subject record and the optional body fit,
-    /// then moves the subject into place.
+    /// then moves the subject into place and lists it in `dataset.json`.
     pub fn finish<B: Serialize>(
         self,
         cameras: &[CameraRecord],
@@ -129,6 +179,7 @@ impl SubjectWriter {
         if let Some(body) = body {
             write_json(&self.staging.join(files::BODY), body)?;
         }
-        fs::rename(&self.staging, &self.target).map_err(|e| DataError::io(&self.target, e))
+        fs::rename(&self.staging, &self.target).map_err(|e| DataError::io(&self.target, e))?;
+        self.dataset.publish().map(|_| ())
     }
 }

@@ -39,7 +39,7 @@ impl Region {
             j if (joint::LEFT_HAND_START..joint::RIGHT_HAND_START).contains(&j) => {
                 Region::Hand { left: true }
             }
-            j if j >= joint::RIGHT_HAND_START && j < NUM_JOINTS => Region::Hand { left: false },
+            j if (joint::RIGHT_HAND_START..NUM_JOINTS).contains(&j) => Region::Hand { left: false },
             _ => Region::Torso,
         }
     }

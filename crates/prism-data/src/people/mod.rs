@@ -50,6 +50,24 @@ pub struct Person {
     pub height: f32,
 }
 
+impl Person {
+    /// The person placed in the world by the viewing protocol: scaled to `placement.height`
+    /// and translated (`Placement::transform(self.height)`), with the body parameters composed
+    /// accordingly (`scale`, `transl` of `body.json`).
+    pub fn placed(&self, placement: &crate::Placement) -> Person {
+        let m = placement.transform(self.height);
+        let mut mesh = self.mesh.clone();
+        for p in &mut mesh.positions {
+            *p = m.transform_point3(*p);
+        }
+        Person {
+            mesh,
+            body: self.body.placed(m),
+            height: placement.height,
+        }
+    }
+}
+
 /// Options of the people generator.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PeopleConfig {

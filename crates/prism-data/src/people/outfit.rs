@@ -501,13 +501,11 @@ pub(crate) fn clothe(outfit: &Outfit, lm: &Landmarks, region: Region, p: Vec3) -
             let d = p - axis;
             let u = d.y.atan2(d.z) * 0.045;
             let v = p.x.abs();
-            if let Some(jk) = &outfit.jacket {
-                if t < 0.97 {
-                    return Some(Cover {
-                        color: jk.fabric.color(u, v, p),
-                        offset: jk.thickness * 0.8,
-                    });
-                }
+            if let Some(jk) = outfit.jacket.as_ref().filter(|_| t < 0.97) {
+                return Some(Cover {
+                    color: jk.fabric.color(u, v, p),
+                    offset: jk.thickness * 0.8,
+                });
             }
             let top = &outfit.top;
             if t < top.sleeve || (top.kind != TopKind::Tank && t < 0.08) {

@@ -58,7 +58,7 @@ fn mirror_of(j: usize) -> Option<usize> {
         joint::RIGHT_SHOULDER => Some(joint::LEFT_SHOULDER),
         joint::RIGHT_ELBOW => Some(joint::LEFT_ELBOW),
         joint::RIGHT_WRIST => Some(joint::LEFT_WRIST),
-        j if j >= joint::RIGHT_HAND_START && j < NUM_JOINTS => {
+        j if (joint::RIGHT_HAND_START..NUM_JOINTS).contains(&j) => {
             Some(j - joint::RIGHT_HAND_START + joint::LEFT_HAND_START)
         }
         _ => None,
@@ -192,13 +192,9 @@ pub fn sample_pose(rng: &mut ChaCha8Rng, skirt: bool) -> [[f32; 3]; NUM_JOINTS] 
     ];
     let both = styles[rng.random_range(0..styles.len())];
     for left in [true, false] {
-        let style = if both == ArmStyle::Wave && !left {
-            ArmStyle::Relaxed
-        } else if both == ArmStyle::Gesture && rng.random_bool(0.4) {
-            ArmStyle::Relaxed
-        } else {
-            both
-        };
+        let relax = (both == ArmStyle::Wave && !left)
+            || (both == ArmStyle::Gesture && rng.random_bool(0.4));
+        let style = if relax { ArmStyle::Relaxed } else { both };
         let (shoulder, elbow, wrist) = match style {
             ArmStyle::Relaxed => (
                 [u(rng, -0.2, 0.2), u(rng, -0.25, 0.1), u(rng, -1.3, -1.1)],

@@ -196,3 +196,22 @@ fn extra_geometry_is_closed_and_outward() {
         }
     }
 }
+
+#[test]
+fn placement_moves_mesh_and_body_together() {
+    let p = quick(5);
+    let placement = crate::Placement {
+        height: 1.82,
+        translation: [0.07, 0.0, -0.04],
+    };
+    let w = p.placed(&placement);
+    let (lo, hi) = w.mesh.bounds().unwrap();
+    assert!(lo.y.abs() < 1e-5 && (hi.y - 1.82).abs() < 1e-4);
+    // The posed body of the composed parameters is the placed body.
+    let a = model().pose(&p.body);
+    let b = model().pose(&w.body);
+    let m = placement.transform(p.height);
+    for (x, y) in a.vertices.iter().zip(&b.vertices) {
+        assert!((m.transform_point3(*x) - *y).length() < 1e-4);
+    }
+}

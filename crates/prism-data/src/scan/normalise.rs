@@ -4,18 +4,21 @@
 use std::str::FromStr;
 
 use glam::{DMat4, DVec3, Mat4};
+use serde::{Deserialize, Serialize};
 
 use super::error::ScanError;
 use crate::mesh::Mesh;
 use crate::protocol::Placement;
 
-/// The file's up axis.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+/// The file's up axis (recorded in `dataset.json` as `"y"` or `"z"`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub enum UpAxis {
     /// +Y is up (OBJ exports of most scanners, THuman).
     #[default]
+    #[serde(rename = "y")]
     Y,
     /// +Z is up (Blender-style exports): the file's -Y becomes the facing direction +Z.
+    #[serde(rename = "z")]
     Z,
 }
 
@@ -31,17 +34,22 @@ impl FromStr for UpAxis {
 }
 
 /// Where the subject faces, once the up axis is Y (for `--up z` that is after turning the
-/// file's +Z into +Y, which takes the file's -Y to +Z).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+/// file's +Z into +Y, which takes the file's -Y to +Z); recorded as `"+z"`, `"-z"`, `"+x"` or
+/// `"-x"`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Facing {
     /// Facing +Z (the protocol's convention).
     #[default]
+    #[serde(rename = "+z")]
     PlusZ,
     /// Facing -Z.
+    #[serde(rename = "-z")]
     MinusZ,
     /// Facing +X.
+    #[serde(rename = "+x")]
     PlusX,
     /// Facing -X.
+    #[serde(rename = "-x")]
     MinusX,
 }
 

@@ -51,7 +51,7 @@ fn candidates(a: &Assembly, j: usize) -> (Vec<usize>, f32) {
                 joint::RIGHT_HAND_START
             };
             let finger = Finger::ALL[(j - start) / 3];
-            let first = (j - start) % 3 == 0;
+            let first = (j - start).is_multiple_of(3);
             let r = if finger == Finger::Thumb {
                 0.026
             } else {

@@ -1,0 +1,423 @@
+//! Tiling, depth sorting and front-to-back alpha compositing of projected Gaussians in one
+//! camera, and the reverse pass that yields their gradients.
+//!
+//! For a pixel with centre `x`, the Gaussians of its tile are visited in depth order:
+//!
+//! ```text
+//! d = x - (u, v),  power = d^T conic d / 2
+//! alpha_i = min(0.99, o_i exp(-power))        skipped when < 1/255 or outside 3 sigma
+//! out = sum_i f_i alpha_i T_i,   T_i = prod_{j<i} (1 - alpha_j)
+//! ```
+//!
+//! stopping before the Gaussian that would push the transmittance below 1e-4. The composited
+//! channels are the `C` features, then `1` (giving the alpha `1 - T`) and the depth `z`.
+//!
+//! The reverse pass walks each pixel's list back to front (3DGS paper, Sec. 6 and its code):
+//! `T_i = T_{i+1} / (1 - alpha_i)` and, with `B_i` the channels composited behind `i`
+//! (`B_{i-1} = alpha_i f_i + (1 - alpha_i) B_i`), `dout/dalpha_i = T_i (f_i - B_i)`.
+
+use rayon::prelude::*;
+
+use super::project::Projected;
+use super::view::View;
+use super::{MAX_ALPHA, MAX_POWER, MIN_ALPHA, MIN_TRANSMITTANCE, TILE_SIZE};
+
+/// Per tile, the indices of the Gaussians that touch it, sorted front to back.
+#[derive(Clone, Debug, Default)]
+pub struct TileLists {
+    /// `offsets[t]..offsets[t + 1]` is tile `t`'s range in `ids`.
+    pub offsets: Vec<usize>,
+    /// Gaussian indices.
+    pub ids: Vec<u32>,
+}
+
+impl TileLists {
+    /// Tile `t`'s Gaussians, front to back.
+    pub fn tile(&self, t: usize) -> &[u32] {
+        &self.ids[self.offsets[t]..self.offsets[t + 1]]
+    }
+}
+
+/// Sorts the visible Gaussians by depth (ties by index, so the order is deterministic) and
+/// lists, per tile, those whose 3-sigma box covers one of its pixel centres.
+pub fn bin(projected: &[Option<Projected>], view: &View) -> TileLists {
+    let (w, h) = (view.width, view.height);
+    let tiles_x = view.tiles_x();
+    let tiles = tiles_x * view.tiles_y();
+    let mut order: Vec<(u32, f32, [usize; 4])> = projected
+        .par_iter()
+        .enumerate()
+        .filter_map(|(i, p)| {
+            let p = p.as_ref()?;
+            let r = p.pixel_rect(w, h)?;
+            let tile_rect = [
+                r[0] / TILE_SIZE,
+                r[1] / TILE_SIZE,
+                r[2] / TILE_SIZE,
+                r[3] / TILE_SIZE,
+            ];
+            Some((i as u32, p.depth, tile_rect))
+        })
+        .collect();
+    order.par_sort_unstable_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+
+    let mut counts = vec![0usize; tiles + 1];
+    for (_, _, r) in &order {
+        for ty in r[1]..=r[3] {
+            for tx in r[0]..=r[2] {
+                counts[ty * tiles_x + tx + 1] += 1;
+            }
+        }
+    }
+    for t in 0..tiles {
+        counts[t + 1] += counts[t];
+    }
+    let mut cursor = counts.clone();
+    let mut ids = vec![0u32; counts[tiles]];
+    for (i, _, r) in &order {
+        for ty in r[1]..=r[3] {
+            for tx in r[0]..=r[2] {
+                let t = ty * tiles_x + tx;
+                ids[cursor[t]] = *i;
+                cursor[t] += 1;
+            }
+        }
+    }
+    TileLists {
+        offsets: counts,
+        ids,
+    }
+}
+
+/// The pixel rectangle of tile `t`: `(x0, y0, width, height)`.
+fn tile_rect(t: usize, view: &View) -> (usize, usize, usize, usize) {
+    let tiles_x = view.tiles_x();
+    let (x0, y0) = ((t % tiles_x) * TILE_SIZE, (t / tiles_x) * TILE_SIZE);
+    (
+        x0,
+        y0,
+        TILE_SIZE.min(view.width - x0),
+        TILE_SIZE.min(view.height - y0),
+    )
+}
+
+/// The overlap of a Gaussian's pixel box with a tile, in tile-local inclusive coordinates.
+fn overlap(p: &Projected, view: &View, tile: (usize, usize, usize, usize)) -> Option<[usize; 4]> {
+    let r = p.pixel_rect(view.width, view.height)?;
+    let (x0, y0, tw, th) = tile;
+    let (ax0, ay0) = (r[0].max(x0), r[1].max(y0));
+    let (ax1, ay1) = (r[2].min(x0 + tw - 1), r[3].min(y0 + th - 1));
+    (ax0 <= ax1 && ay0 <= ay1).then(|| [ax0 - x0, ay0 - y0, ax1 - x0, ay1 - y0])
+}
+
+/// The tile-local columns of `lx0..=lx1` in the row at offset `dy` from the Gaussian's centre
+/// where it may be drawn: where `power <= min(3-sigma limit, ln(255 o))` (beyond that the alpha
+/// is below 1/255), solved for `dx` and widened by a pixel, so that [`alpha_at`] still decides
+/// at the border. A pure speed-up: it only skips pixels that [`alpha_at`] rejects.
+#[inline]
+fn row_span(p: &Projected, dy: f32, x0: usize, lx0: usize, lx1: usize) -> Option<(usize, usize)> {
+    let [a, b, c] = p.conic;
+    let limit = MAX_POWER.min((p.opacity / MIN_ALPHA).ln()) + 0.01;
+    // 0.5 a dx^2 + b dy dx + 0.5 c dy^2 - limit <= 0, with a > 0.
+    let disc = (b * b - a * c) * dy * dy + 2.0 * a * limit;
+    if disc.is_nan() || disc < 0.0 {
+        return None;
+    }
+    let root = disc.sqrt();
+    let lo = p.u + (-b * dy - root) / a - 0.5;
+    let hi = p.u + (-b * dy + root) / a - 0.5;
+    let first = (lo.ceil() - 1.0 - x0 as f32).max(lx0 as f32);
+    let last = (hi.floor() + 1.0 - x0 as f32).min(lx1 as f32);
+    (first <= last).then_some((first as usize, last as usize))
+}
+
+/// The Gaussian's alpha at offset `(dx, dy)` from its centre, with `exp(-power)` and the
+/// unclamped `o exp(-power)`; `None` where it is skipped (outside 3 sigma, below 1/255).
+#[inline]
+fn alpha_at(p: &Projected, dx: f32, dy: f32) -> Option<(f32, f32, f32)> {
+    let [a, b, c] = p.conic;
+    let power = 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy;
+    if power.is_nan() || power > MAX_POWER {
+        return None;
+    }
+    let g = (-power).exp();
+    let raw = p.opacity * g;
+    let alpha = raw.min(MAX_ALPHA);
+    (alpha >= MIN_ALPHA).then_some((alpha, g, raw))
+}
+
+/// The result of compositing one camera.
+#[derive(Clone, Debug, Default)]
+pub struct Composited {
+    /// `[C + 2, H, W]`: features, alpha, accumulated depth `sum_i w_i z_i` (moved out into the
+    /// output by `host::forward`; the reverse pass does not read it).
+    pub image: Vec<f32>,
+    /// Per pixel, the final transmittance.
+    pub transmittance: Vec<f32>,
+    /// Per pixel, one past the tile-list position of the last Gaussian composited.
+    pub contributors: Vec<u32>,
+}
+
+struct TileOut {
+    acc: Vec<f32>,
+    t: Vec<f32>,
+    n: Vec<u32>,
+}
+
+/// Front-to-back compositing of one camera, in parallel over tiles. `features` is `[N, C]`.
+pub fn composite(
+    projected: &[Option<Projected>],
+    features: &[f32],
+    channels: usize,
+    lists: &TileLists,
+    view: &View,
+) -> Composited {
+    let tiles = view.tiles_x() * view.tiles_y();
+    let ch = channels + 2;
+    let outs: Vec<TileOut> = (0..tiles)
+        .into_par_iter()
+        .map(|tile| {
+            let rect = tile_rect(tile, view);
+            let (x0, y0, tw, th) = rect;
+            let np = tw * th;
+            let mut acc = vec![0.0f32; ch * np];
+            let mut t = vec![1.0f32; np];
+            let mut n = vec![0u32; np];
+            let mut done = vec![false; np];
+            let mut live = np;
+            for (k, &j) in lists.tile(tile).iter().enumerate() {
+                if live == 0 {
+                    break;
+                }
+                let j = j as usize;
+                let Some(p) = projected[j].as_ref() else {
+                    continue;
+                };
+                let Some([lx0, ly0, lx1, ly1]) = overlap(p, view, rect) else {
+                    continue;
+                };
+                let f = &features[j * channels..(j + 1) * channels];
+                for ly in ly0..=ly1 {
+                    let dy = (y0 + ly) as f32 + 0.5 - p.v;
+                    let Some((sx0, sx1)) = row_span(p, dy, x0, lx0, lx1) else {
+                        continue;
+                    };
+                    for lx in sx0..=sx1 {
+                        let idx = ly * tw + lx;
+                        if done[idx] {
+                            continue;
+                        }
+                        let dx = (x0 + lx) as f32 + 0.5 - p.u;
+                        let Some((alpha, _, _)) = alpha_at(p, dx, dy) else {
+                            continue;
+                        };
+                        let next = t[idx] * (1.0 - alpha);
+                        if next < MIN_TRANSMITTANCE {
+                            done[idx] = true;
+                            live -= 1;
+                            continue;
+                        }
+                        let w = alpha * t[idx];
+                        for (c, fc) in f.iter().enumerate() {
+                            acc[c * np + idx] += w * fc;
+                        }
+                        acc[channels * np + idx] += w;
+                        acc[(channels + 1) * np + idx] += w * p.depth;
+                        t[idx] = next;
+                        n[idx] = k as u32 + 1;
+                    }
+                }
+            }
+            TileOut { acc, t, n }
+        })
+        .collect();
+
+    let (w, h) = (view.width, view.height);
+    let mut out = Composited {
+        image: vec![0.0; ch * w * h],
+        transmittance: vec![1.0; w * h],
+        contributors: vec![0; w * h],
+    };
+    for (tile, o) in outs.iter().enumerate() {
+        let (x0, y0, tw, th) = tile_rect(tile, view);
+        let np = tw * th;
+        for ly in 0..th {
+            let row = (y0 + ly) * w + x0;
+            let src = ly * tw;
+            out.transmittance[row..row + tw].copy_from_slice(&o.t[src..src + tw]);
+            out.contributors[row..row + tw].copy_from_slice(&o.n[src..src + tw]);
+            for c in 0..ch {
+                out.image[c * w * h + row..c * w * h + row + tw]
+                    .copy_from_slice(&o.acc[c * np + src..c * np + src + tw]);
+            }
+        }
+    }
+    out
+}
+
+/// Per projected Gaussian, the number of gradient values the reverse pass accumulates:
+/// `u, v, depth, conic a, b, c, opacity`, then the `C` features.
+pub const GRAD_HEAD: usize = 7;
+
+/// The reverse pass of [`composite`]. `grad_image` is `dL/d(image)` in the layout of
+/// [`Composited::image`]. Returns `[N, GRAD_HEAD + C]`: per Gaussian `dL/du, dL/dv, dL/dz`
+/// (depth channel only), `dL/dconic`, `dL/dopacity`, `dL/dfeatures`.
+pub fn composite_backward(
+    projected: &[Option<Projected>],
+    features: &[f32],
+    channels: usize,
+    lists: &TileLists,
+    view: &View,
+    forward: &Composited,
+    grad_image: &[f32],
+) -> Vec<f32> {
+    let tiles = view.tiles_x() * view.tiles_y();
+    let ch = channels + 2;
+    let stride = GRAD_HEAD + channels;
+    let (w, h) = (view.width, view.height);
+    let per_tile: Vec<Vec<f32>> = (0..tiles)
+        .into_par_iter()
+        .map(|tile| {
+            let list = lists.tile(tile);
+            let mut slots = vec![0.0f32; list.len() * stride];
+            let rect = tile_rect(tile, view);
+            let (x0, y0, tw, th) = rect;
+            let np = tw * th;
+            let mut t = vec![0.0f32; np];
+            let mut n = vec![0u32; np];
+            let mut g = vec![0.0f32; ch * np];
+            let mut behind = vec![0.0f32; ch * np];
+            let mut last = 0usize;
+            for ly in 0..th {
+                for lx in 0..tw {
+                    let (idx, pix) = (ly * tw + lx, (y0 + ly) * w + x0 + lx);
+                    t[idx] = forward.transmittance[pix];
+                    n[idx] = forward.contributors[pix];
+                    last = last.max(n[idx] as usize);
+                    for c in 0..ch {
+                        g[c * np + idx] = grad_image[c * w * h + pix];
+                    }
+                }
+            }
+            let mut fe = vec![0.0f32; ch];
+            for k in (0..last).rev() {
+                let j = list[k] as usize;
+                let Some(p) = projected[j].as_ref() else {
+                    continue;
+                };
+                let Some([lx0, ly0, lx1, ly1]) = overlap(p, view, rect) else {
+                    continue;
+                };
+                fe[..channels].copy_from_slice(&features[j * channels..(j + 1) * channels]);
+                fe[channels] = 1.0;
+                fe[channels + 1] = p.depth;
+                let slot = &mut slots[k * stride..(k + 1) * stride];
+                let [a, b, c] = p.conic;
+                for ly in ly0..=ly1 {
+                    let dy = (y0 + ly) as f32 + 0.5 - p.v;
+                    let Some((sx0, sx1)) = row_span(p, dy, x0, lx0, lx1) else {
+                        continue;
+                    };
+                    for lx in sx0..=sx1 {
+                        let idx = ly * tw + lx;
+                        if k as u32 >= n[idx] {
+                            continue;
+                        }
+                        let dx = (x0 + lx) as f32 + 0.5 - p.u;
+                        let Some((alpha, gauss, raw)) = alpha_at(p, dx, dy) else {
+                            continue;
+                        };
+                        let tk = t[idx] / (1.0 - alpha);
+                        t[idx] = tk;
+                        let wk = alpha * tk;
+                        let mut d_alpha = 0.0;
+                        for (cc, &fc) in fe.iter().enumerate() {
+                            let gc = g[cc * np + idx];
+                            let bc = &mut behind[cc * np + idx];
+                            d_alpha += (fc - *bc) * gc;
+                            *bc = alpha * fc + (1.0 - alpha) * *bc;
+                        }
+                        d_alpha *= tk;
+                        for cc in 0..channels {
+                            slot[GRAD_HEAD + cc] += wk * g[cc * np + idx];
+                        }
+                        slot[2] += wk * g[(channels + 1) * np + idx];
+                        if raw < MAX_ALPHA {
+                            slot[6] += gauss * d_alpha;
+                            let d_power = -alpha * d_alpha;
+                            slot[0] -= d_power * (a * dx + b * dy);
+                            slot[1] -= d_power * (b * dx + c * dy);
+                            slot[3] += 0.5 * dx * dx * d_power;
+                            slot[4] += dx * dy * d_power;
+                            slot[5] += 0.5 * dy * dy * d_power;
+                        }
+                    }
+                }
+            }
+            slots
+        })
+        .collect();
+
+    let mut grads = vec![0.0f32; projected.len() * stride];
+    for (tile, slots) in per_tile.iter().enumerate() {
+        for (k, &j) in lists.tile(tile).iter().enumerate() {
+            let Some(slot) = slots.get(k * stride..(k + 1) * stride) else {
+                break;
+            };
+            let dst = &mut grads[j as usize * stride..(j as usize + 1) * stride];
+            for (d, s) in dst.iter_mut().zip(slot) {
+                *d += s;
+            }
+        }
+    }
+    grads
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `row_span` never drops a pixel that `alpha_at` would draw.
+    #[test]
+    fn row_spans_contain_every_drawn_pixel() {
+        let mut state = 12345u64;
+        let mut rand = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let mut drawn = 0;
+        for _ in 0..300 {
+            // A random positive-definite 2D covariance (with the dilation) and opacity.
+            let (sx, sy, t) = (0.2 + 6.0 * rand(), 0.2 + 6.0 * rand(), 6.3 * rand());
+            let (cs, sn) = (t.cos(), t.sin());
+            let cov = [
+                cs * cs * sx * sx + sn * sn * sy * sy + 0.3,
+                cs * sn * (sx * sx - sy * sy),
+                sn * sn * sx * sx + cs * cs * sy * sy + 0.3,
+            ];
+            let det = cov[0] * cov[2] - cov[1] * cov[1];
+            let p = Projected {
+                u: 20.0 + 10.0 * rand(),
+                v: 0.0,
+                depth: 1.0,
+                conic: [cov[2] / det, -cov[1] / det, cov[0] / det],
+                opacity: 0.003 + rand(),
+                extent: [0.0; 2],
+            };
+            for row in -25..=25 {
+                let dy = row as f32 + 0.5 * rand();
+                let span = row_span(&p, dy, 0, 0, 63);
+                for x in 0..64usize {
+                    if alpha_at(&p, x as f32 + 0.5 - p.u, dy).is_some() {
+                        drawn += 1;
+                        let (a, b) = span.expect("a drawn pixel in a rejected row");
+                        assert!(a <= x && x <= b, "{x} outside {a}..={b}");
+                    }
+                }
+            }
+        }
+        assert!(drawn > 10_000, "{drawn}");
+    }
+}

@@ -1,0 +1,81 @@
+//! Rendering a [`GaussianCloud`] to an 8-bit RGB image (what `prism splat render` does).
+
+use std::path::Path;
+
+use burn::tensor::Device;
+use image::RgbImage;
+use prism_data::Camera;
+
+use super::ply::GaussianCloud;
+use super::render::{background as background_tensor, render};
+use crate::RenderError;
+use crate::files::write_atomically;
+
+/// Parses a background colour `R,G,B` with components in [0, 1].
+///
+/// # Errors
+/// [`RenderError::Value`] naming the bad component.
+pub fn parse_background(text: &str) -> Result<[f32; 3], RenderError> {
+    let bad = |m: String| RenderError::Value(format!("background `{text}`: {m}"));
+    let parts: Vec<&str> = text.split(',').map(str::trim).collect();
+    if parts.len() != 3 {
+        return Err(bad(format!(
+            "expected R,G,B, got {} components",
+            parts.len()
+        )));
+    }
+    let mut out = [0.0; 3];
+    for (o, p) in out.iter_mut().zip(&parts) {
+        let v: f32 = p
+            .parse()
+            .map_err(|_| bad(format!("`{p}` is not a number")))?;
+        if !(0.0..=1.0).contains(&v) {
+            return Err(bad(format!("component {v} is outside [0, 1]")));
+        }
+        *o = v;
+    }
+    Ok(out)
+}
+
+/// Renders `cloud` (colours from its degree-0 term) into `camera` over `background`.
+///
+/// # Errors
+/// [`RenderError::Input`] when the cloud is inconsistent.
+pub fn render_cloud(
+    cloud: &GaussianCloud,
+    camera: &Camera,
+    background: [f32; 3],
+    device: &Device,
+) -> Result<RgbImage, RenderError> {
+    cloud.check().map_err(RenderError::Input)?;
+    let rendered = render(&cloud.to_gaussians(device), &[*camera])?;
+    let image = rendered.over(background_tensor(&background, device));
+    let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
+    let values = image
+        .into_data()
+        .convert::<f32>()
+        .try_to_vec::<f32>()
+        .map_err(|e| RenderError::Input(format!("reading the rendered image: {e:?}")))?;
+    let plane = (w * h) as usize;
+    Ok(RgbImage::from_fn(w, h, |x, y| {
+        let i = (y * w + x) as usize;
+        image::Rgb(std::array::from_fn(|c| {
+            (values[c * plane + i].clamp(0.0, 1.0) * 255.0).round() as u8
+        }))
+    }))
+}
+
+/// Saves an image as PNG, atomically.
+///
+/// # Errors
+/// [`RenderError::Io`] naming the file.
+pub fn save_png(image: &RgbImage, path: &Path) -> Result<(), RenderError> {
+    let mut bytes = Vec::new();
+    image
+        .write_to(
+            &mut std::io::Cursor::new(&mut bytes),
+            image::ImageFormat::Png,
+        )
+        .map_err(|e| RenderError::io(path, std::io::Error::other(e)))?;
+    write_atomically(path, &bytes)
+}

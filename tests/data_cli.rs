@@ -1,0 +1,138 @@
+//! End-to-end tests of `prism data synth` and `prism data check` through the built binary.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn prism(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_prism"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn text(out: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    )
+}
+
+fn synth(out: &Path, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "data",
+        "synth",
+        "--out",
+        out.to_str().unwrap(),
+        "--subjects",
+        "3",
+        "--res",
+        "32",
+    ];
+    args.extend_from_slice(extra);
+    prism(&args)
+}
+
+#[test]
+fn synth_then_check_then_rerun_then_corrupt() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("ds");
+    let out = synth(&data, &["--test-fraction", "0.34"]);
+    assert!(out.status.success(), "{}", text(&out));
+    assert!(text(&out).contains("3 subjects written"), "{}", text(&out));
+
+    let out = prism(&["data", "check", data.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", text(&out));
+    assert!(
+        text(&out).contains("ok (3 subjects, 315 views)"),
+        "{}",
+        text(&out)
+    );
+
+    // The dataset follows the format: split, 105 cameras, body fits, point map.
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(data.join("dataset.json")).unwrap()).unwrap();
+    assert_eq!(meta["split"]["test"], serde_json::json!(["subject_0002"]));
+    assert_eq!(meta["width"], 32);
+    let cams: Vec<serde_json::Value> = serde_json::from_str(
+        &std::fs::read_to_string(data.join("subject_0000/cameras.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(cams.len(), 105);
+    let body = prism_data::BodyParams::load(data.join("subject_0001/body.json")).unwrap();
+    assert!(body.scale > 0.0);
+    let subject: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(data.join("subject_0001/subject.json")).unwrap(),
+    )
+    .unwrap();
+    let h = subject["height"].as_f64().unwrap();
+    assert!((h - 1.80).abs() <= 0.05 + 1e-6, "height {h}");
+
+    // A rerun with the same settings skips every finished subject.
+    let out = synth(&data, &["--test-fraction", "0.34"]);
+    assert!(
+        out.status.success() && text(&out).contains("0 subjects written, 3 already there"),
+        "{}",
+        text(&out)
+    );
+    // Other settings into the same folder are refused.
+    let out = synth(&data, &["--seed", "9"]);
+    assert!(
+        !out.status.success() && text(&out).contains("other settings"),
+        "{}",
+        text(&out)
+    );
+
+    // A broken file makes check fail, naming it.
+    std::fs::write(data.join("subject_0001/rgb/042.png"), b"broken").unwrap();
+    let out = prism(&["data", "check", data.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(
+        text(&out).contains("subject_0001/rgb/042.png"),
+        "{}",
+        text(&out)
+    );
+}
+
+#[test]
+fn synth_is_reproducible_and_rejects_bad_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = (dir.path().join("a"), dir.path().join("b"));
+    for d in [&a, &b] {
+        let out = prism(&[
+            "data",
+            "synth",
+            "--out",
+            d.to_str().unwrap(),
+            "--subjects",
+            "1",
+            "--res",
+            "16",
+        ]);
+        assert!(out.status.success(), "{}", text(&out));
+    }
+    for f in [
+        "subject_0000/rgb/000.png",
+        "subject_0000/rgb/077.png",
+        "subject_0000/points/000.npy",
+    ] {
+        assert_eq!(
+            std::fs::read(a.join(f)).unwrap(),
+            std::fs::read(b.join(f)).unwrap(),
+            "{f}"
+        );
+    }
+    let out = synth(&dir.path().join("c"), &["--background", "2,0,0"]);
+    assert!(
+        !out.status.success() && text(&out).contains("[0, 1]"),
+        "{}",
+        text(&out)
+    );
+    let out = prism(&[
+        "data",
+        "check",
+        dir.path().join("nothing").to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(text(&out).contains("nothing"), "{}", text(&out));
+}

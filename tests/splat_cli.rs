@@ -1,0 +1,166 @@
+//! End-to-end tests of `prism splat render` through the built binary.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use prism_data::camera::mat4_to_rows;
+use prism_data::{Camera, Intrinsics};
+use prism_render::splat::GaussianCloud;
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("prism-splat-cli-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn prism(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_prism"))
+        .args(args)
+        .output()
+        .expect("running prism")
+}
+
+/// A red Gaussian in front of a green one, 2 m in front of a frontal camera; and the camera.
+fn scene(dir: &Path) -> (PathBuf, PathBuf) {
+    let cloud = GaussianCloud::from_colours(
+        vec![[0.0, 0.9, 0.0], [0.05, 0.95, -0.5]],
+        vec![[-2.5; 3], [-1.2; 3]],
+        vec![[1.0, 0.0, 0.0, 0.0]; 2],
+        vec![4.0, 4.0],
+        &[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+    );
+    let ply = dir.join("scene.ply");
+    cloud.write(&ply).unwrap();
+    let camera = Camera::orbit(
+        0.0,
+        0.0,
+        2.0,
+        glam::Vec3::new(0.0, 0.9, 0.0),
+        Intrinsics::protocol_default(48, 40),
+    );
+    let k = camera.intrinsics;
+    let json = serde_json::json!({
+        "index": 0, "yaw_deg": 0.0, "pitch_deg": 0.0,
+        "fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy,
+        "c2w": mat4_to_rows(&camera.c2w), "width": k.width, "height": k.height,
+    });
+    let cam = dir.join("cam.json");
+    std::fs::write(&cam, serde_json::to_string_pretty(&json).unwrap()).unwrap();
+    (ply, cam)
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// `prism splat render --ply PLY --camera CAM --out OUT` followed by `extra`.
+fn render(ply: &Path, cam: &Path, out: &Path, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "splat",
+        "render",
+        "--ply",
+        s(ply),
+        "--camera",
+        s(cam),
+        "--out",
+        s(out),
+    ];
+    args.extend_from_slice(extra);
+    prism(&args)
+}
+
+#[test]
+fn renders_a_ply_file_into_a_png() {
+    let dir = temp_dir("ok");
+    let (ply, cam) = scene(&dir);
+    let out = dir.join("out.png");
+    let run = render(
+        &ply,
+        &cam,
+        &out,
+        &["--background", "0,0,1", "--backend", "ndarray"],
+    );
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let image = image::open(&out).unwrap().to_rgb8();
+    assert_eq!(image.dimensions(), (48, 40));
+    // The red Gaussian covers the centre (the orbit centre projects to (24, 20)).
+    let centre = image.get_pixel(23, 19).0;
+    assert!(
+        centre[0] > 200 && centre[1] < 60 && centre[2] < 60,
+        "{centre:?}"
+    );
+    // Off the small red one but on the wide green one (further away, centred at (24.8, 19.2)).
+    let side = image.get_pixel(31, 19).0;
+    assert!(side[0] == 0 && side[1] > 80, "{side:?}");
+    // The corners show the background.
+    assert_eq!(image.get_pixel(0, 0).0, [0, 0, 255]);
+    assert_eq!(image.get_pixel(47, 39).0, [0, 0, 255]);
+    // The same on flex, the default backend.
+    let out_flex = dir.join("flex.png");
+    let run = render(&ply, &cam, &out_flex, &["--background", "0,0,1"]);
+    assert!(run.status.success());
+    assert_eq!(image::open(&out_flex).unwrap().to_rgb8(), image);
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+fn assert_fails(run: &Output, needle: &str, out: &Path) {
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(1), "{stderr}");
+    assert!(stderr.starts_with("error: "), "{stderr}");
+    assert_eq!(stderr.trim_end().lines().count(), 1, "{stderr}");
+    assert!(stderr.contains(needle), "{stderr}");
+    assert!(!out.exists(), "an output was written");
+}
+
+#[test]
+fn a_bad_background_is_a_clear_error() {
+    let dir = temp_dir("bg");
+    let (ply, cam) = scene(&dir);
+    let out = dir.join("out.png");
+    for (bg, needle) in [
+        ("0,1.5,0", "1.5 is outside [0, 1]"),
+        ("0,0", "expected R,G,B"),
+        ("a,0,0", "`a` is not a number"),
+    ] {
+        let run = render(&ply, &cam, &out, &["--background", bg]);
+        assert_fails(&run, needle, &out);
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn missing_or_broken_inputs_are_errors_naming_the_file() {
+    let dir = temp_dir("missing");
+    let (ply, cam) = scene(&dir);
+    let out = dir.join("out.png");
+    let missing = dir.join("missing.ply");
+    let run = render(&missing, &cam, &out, &[]);
+    assert_fails(&run, "missing.ply", &out);
+    let broken = dir.join("broken.json");
+    std::fs::write(&broken, "{\"fx\": 10}").unwrap();
+    let run = render(&ply, &broken, &out, &[]);
+    assert_fails(&run, "broken.json", &out);
+    let not_ply = dir.join("cam-as.ply");
+    std::fs::copy(&cam, &not_ply).unwrap();
+    let run = render(&not_ply, &cam, &out, &[]);
+    assert_fails(&run, "cam-as.ply", &out);
+    // An output directory that does not exist: nothing is left behind.
+    let nowhere = dir.join("no/such/out.png");
+    let run = render(&ply, &cam, &nowhere, &[]);
+    assert_fails(&run, "out.png", &nowhere);
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn help_describes_the_command() {
+    let run = prism(&["splat", "render", "--help"]);
+    assert!(run.status.success());
+    let text = String::from_utf8_lossy(&run.stdout);
+    for flag in ["--ply", "--camera", "--out", "--background", "--backend"] {
+        assert!(text.contains(flag), "{text}");
+    }
+}
