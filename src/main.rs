@@ -39,6 +39,13 @@ enum Command {
     TrainTeacher(commands::train::TrainTeacherArgs),
     /// Distil the linear-attention student from a teacher (progressive schedule, ablations).
     DistillStudent(commands::distill::DistillStudentArgs),
+    /// Evaluate a checkpoint on the test subjects (PSNR, SSIM, LPIPS, FPS, by angle), or score
+    /// any method's images against ground truth.
+    Evaluate(commands::evaluate::EvaluateArgs),
+    /// Novel views (PNG frames and a GIF) of a person from one photo or a folder of frames.
+    Infer(commands::infer::InferArgs),
+    /// The whole pipeline on a fresh machine: data, teacher, student, evaluation, a table.
+    Quickstart(commands::quickstart::QuickstartArgs),
 }
 
 fn main() {
@@ -52,6 +59,9 @@ fn main() {
         Command::Splat(cmd) => cmd.run(),
         Command::TrainTeacher(args) => args.run(),
         Command::DistillStudent(args) => args.run(),
+        Command::Evaluate(args) => args.run(),
+        Command::Infer(args) => args.run(),
+        Command::Quickstart(args) => args.run(),
     };
     if let Err(err) = result {
         eprintln!("error: {err:#}");
