@@ -15,7 +15,7 @@ use prism_train::{QuickstartOptions, quickstart};
 /// resumes an interrupted one.
 #[derive(Args, Debug)]
 pub struct QuickstartArgs {
-    /// The tiny config (64 px, 40 teacher + 24 student steps) instead of the small one.
+    /// The tiny config (64 px, 150 teacher + 48 student steps) instead of the small one.
     #[arg(long)]
     fast: bool,
     /// Output folder [default: runs/quickstart, or runs/quickstart-fast with --fast].

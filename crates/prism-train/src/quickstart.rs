@@ -31,11 +31,17 @@ pub const SMALL_TEACHER_STEPS: usize = 300;
 /// schedule scaled to them).
 pub const SMALL_STUDENT_STEPS: usize = 120;
 
+/// Teacher steps of `--fast` (tiny config; its own 40 steps leave the teacher at the
+/// initial model's level).
+pub const FAST_TEACHER_STEPS: usize = 150;
+/// Student steps of `--fast` (the tiny config's 24-step schedule scaled to them).
+pub const FAST_STUDENT_STEPS: usize = 48;
+
 /// How to run the quick start.
 #[derive(Clone, Debug)]
 pub struct QuickstartOptions {
-    /// The tiny config (64 px, 6 subjects, 40 + 24 steps): a few minutes instead of half an
-    /// hour.
+    /// The tiny config (64 px, 6 subjects, [`FAST_TEACHER_STEPS`] + [`FAST_STUDENT_STEPS`]
+    /// steps): about a minute instead of half an hour.
     pub fast: bool,
     /// The folder of the two runs and their evaluations.
     pub out: PathBuf,
@@ -96,8 +102,9 @@ impl QuickstartSummary {
 }
 
 /// The config the quick start trains: the small config with [`SMALL_TEACHER_STEPS`] and
-/// [`SMALL_STUDENT_STEPS`] (warm-up and distillation schedule scaled along), or with `fast` the
-/// tiny config as shipped. Validation and checkpoints only at the end of each run.
+/// [`SMALL_STUDENT_STEPS`], or with `fast` the tiny config with [`FAST_TEACHER_STEPS`] and
+/// [`FAST_STUDENT_STEPS`]; warm-up and distillation schedule scaled along. Validation and
+/// checkpoints only at the end of each run.
 pub fn quickstart_config(fast: bool) -> TrainingConfig {
     let (text, name) = if fast {
         (TINY_TOML, "configs/tiny.toml")
@@ -106,16 +113,19 @@ pub fn quickstart_config(fast: bool) -> TrainingConfig {
     };
     let mut config =
         TrainingConfig::parse(text, Path::new(name)).expect("the shipped configs parse");
-    if !fast {
-        let t = &mut config.train;
-        t.warmup_steps = t.warmup_steps * SMALL_TEACHER_STEPS / t.steps;
-        t.steps = SMALL_TEACHER_STEPS;
-        let d = &mut config.distill;
-        let scale = |v: usize| (v * SMALL_STUDENT_STEPS / d.steps).max(1);
-        d.start = scale(d.start);
-        d.interval = scale(d.interval);
-        d.steps = SMALL_STUDENT_STEPS;
-    }
+    let (teacher_steps, student_steps) = if fast {
+        (FAST_TEACHER_STEPS, FAST_STUDENT_STEPS)
+    } else {
+        (SMALL_TEACHER_STEPS, SMALL_STUDENT_STEPS)
+    };
+    let t = &mut config.train;
+    t.warmup_steps = t.warmup_steps * teacher_steps / t.steps;
+    t.steps = teacher_steps;
+    let d = &mut config.distill;
+    let scale = |v: usize| (v * student_steps / d.steps).max(1);
+    d.start = scale(d.start);
+    d.interval = scale(d.interval);
+    d.steps = student_steps;
     let t = &mut config.train;
     t.checkpoint_every = t.steps.max(config.distill.steps);
     t.validate_every = t.checkpoint_every;
@@ -261,7 +271,9 @@ mod tests {
         assert_eq!(c.model.resolution, 128);
         let fast = quickstart_config(true);
         assert_eq!(fast.model.resolution, 64);
-        assert_eq!(fast.train.checkpoint_every, 40);
+        assert_eq!(fast.train.steps, FAST_TEACHER_STEPS);
+        assert_eq!(fast.train.checkpoint_every, FAST_TEACHER_STEPS);
+        assert_eq!((fast.distill.start, fast.distill.interval), (8, 8));
         // The student's last switch comes before its last step (it has steps to recover).
         let d = &c.distill;
         assert!(d.start + 4 * d.interval < d.steps);
