@@ -37,7 +37,7 @@ impl HostImages {
         let data: Vec<f32> = tensor
             .into_data()
             .convert::<f32>()
-            .into_vec()
+            .try_into_vec()
             .expect("float image data");
         let plane = 3 * height * width;
         Self {

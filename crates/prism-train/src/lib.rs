@@ -11,6 +11,8 @@
 //! - Data: [`DataOrder`] makes each step's samples a pure function of (seed, step), so a
 //!   resumed run continues exactly; the default synthetic dataset lives in [`cache_dir`].
 //! - Teacher: [`TeacherTask`] / [`TeacherLoss`].
+//! - Evaluation ([`evaluate`]: the paper's protocol, per-angle breakdown, FPS, report) and
+//!   inference from a photo ([`infer`]), both through [`predict`]; images in [`images`].
 
 pub mod cache;
 pub mod checkpoint;
@@ -18,9 +20,12 @@ pub mod clip;
 pub mod config;
 pub mod data;
 pub mod error;
+pub mod evaluate;
 pub mod groups;
+pub mod images;
 pub mod log;
 pub mod parallel;
+pub mod predict;
 pub mod schedule;
 pub mod step;
 pub mod teacher;
@@ -36,6 +41,11 @@ pub use clip::{clip_global_norm, global_norm, parameter_values};
 pub use config::{SyntheticDataConfig, TrainConfig, TrainingConfig, config_name, configs_dir};
 pub use data::{DataOrder, Prefetcher};
 pub use error::TrainError;
+pub use evaluate::{
+    AngleBin, EvaluateOptions, Evaluation, EvaluationFiles, MeanScores, PerAngle, SubjectGrid,
+    evaluate, write_evaluation,
+};
+pub use predict::{Pairs, forward_pairs, inference_model, synthesise};
 pub use groups::{HEAD_MODULES, heads_group, heads_pattern, is_head, learning_rates};
 pub use log::{METRICS_FILE, MetricsLog, read_metrics};
 pub use parallel::{DataParallel, training_devices};

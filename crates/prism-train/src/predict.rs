@@ -7,7 +7,7 @@ use prism_data::Camera;
 use prism_data::dataset::PrismBatch;
 use prism_data::dataset::batch::rgb_chw;
 use prism_data::rays::plucker_rays;
-use prism_model::Prism;
+use prism_model::{Prism, PrismOutput, Views};
 
 /// A batch of `B` (source, target) pairs as the model takes them, with their cameras.
 #[derive(Clone, Debug)]
@@ -93,16 +93,39 @@ impl Pairs {
     }
 }
 
-/// The target views `I_t` the model synthesises for `pairs`, `[B, 3, H, W]` clamped to [0, 1]
-/// (`model` is an inference model: on a device without autodiff, or `Module::valid`).
-pub fn synthesise(model: &Prism, pairs: &Pairs) -> Tensor<4> {
-    model
-        .forward(
-            pairs.source_image.clone(),
-            pairs.source_rays.clone(),
-            pairs.target_rays.clone(),
-            &[],
+impl Pairs {
+    /// The cameras and background of the pairs, as the geometry parts take them.
+    pub fn views(&self) -> Views {
+        Views::new(
+            self.source_cameras.clone(),
+            self.target_cameras.clone(),
+            self.background,
         )
-        .image
-        .clamp(0.0, 1.0)
+    }
+}
+
+/// The full forward pass of `model` on `pairs` (`model` is an inference model: on a device
+/// without autodiff, or `Module::valid`). With a 3DGS head the output holds its Gaussians.
+pub fn forward_pairs(model: &Prism, pairs: &Pairs) -> PrismOutput {
+    model.forward_views(
+        pairs.source_image.clone(),
+        pairs.source_rays.clone(),
+        pairs.target_rays.clone(),
+        &pairs.views(),
+        &[],
+    )
+}
+
+/// The target views `I_t` the model synthesises for `pairs`, `[B, 3, H, W]` clamped to [0, 1].
+/// A model with a 3DGS head runs it too (a training signal): pass [`inference_model`] to skip
+/// its cost.
+pub fn synthesise(model: &Prism, pairs: &Pairs) -> Tensor<4> {
+    forward_pairs(model, pairs).image.clamp(0.0, 1.0)
+}
+
+/// `model` without its 3DGS head: the NVS output alone, what evaluation times and serves.
+pub fn inference_model(model: &Prism) -> Prism {
+    let mut model = model.clone();
+    model.gs_head = None;
+    model
 }
