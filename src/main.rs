@@ -32,6 +32,9 @@ enum Command {
     Splat(commands::splat::SplatCommand),
     /// Train the full-attention teacher (AdamW, warm-up + cosine, checkpoints, validation).
     TrainTeacher(commands::train::TrainTeacherArgs),
+    /// Evaluate a checkpoint on the test subjects (PSNR, SSIM, LPIPS, FPS, report), or score
+    /// any method's images with --pred/--gt.
+    Evaluate(commands::evaluate::EvaluateArgs),
 }
 
 fn main() {
@@ -44,6 +47,7 @@ fn main() {
         Command::Metrics(args) => args.run(),
         Command::Splat(cmd) => cmd.run(),
         Command::TrainTeacher(args) => args.run(),
+        Command::Evaluate(args) => args.run(),
     };
     if let Err(err) = result {
         eprintln!("error: {err:#}");

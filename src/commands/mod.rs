@@ -4,6 +4,7 @@
 pub mod bench;
 pub mod body;
 pub mod data;
+pub mod evaluate;
 pub mod info;
 pub mod metrics;
 pub mod splat;

@@ -13,6 +13,7 @@ use std::time::Instant;
 use burn::tensor::{Device, Tensor};
 use image::RgbImage;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use prism_data::BackendKind;
 use prism_data::dataset::{
     DatasetReader, PrismBatcher, Sample, SampleDataset, SplitKind, TargetSelection,
 };
@@ -21,6 +22,8 @@ use prism_losses::{LPIPS_MIN_SIDE, Lpips, psnr, ssim};
 use prism_model::Prism;
 use serde::Serialize;
 
+use crate::cache::ensure_synthetic_dataset;
+use crate::checkpoint::load_model;
 use crate::error::{Result, TrainError};
 use crate::images::{HostImages, error_map, save_png, save_text, tile};
 use crate::predict::{Pairs, inference_model, synthesise};
@@ -146,6 +149,39 @@ struct ViewScore {
     yaw: f32,
     pitch: f32,
     scores: [f64; 3],
+}
+
+/// Evaluates a checkpoint (a checkpoint folder or a run folder's latest) on the dataset at
+/// `data` (default: its config's synthetic dataset, synthesised into the cache if needed) on
+/// `backend`, and writes the JSON, the report and the grids into `out`.
+///
+/// # Errors
+/// An unreadable checkpoint, dataset or LPIPS weight file, or I/O errors.
+pub fn evaluate_checkpoint(
+    checkpoint: &Path,
+    data: Option<&Path>,
+    out: &Path,
+    backend: BackendKind,
+    lpips_weights: Option<&Path>,
+    options: &EvaluateOptions,
+) -> Result<(Evaluation, EvaluationFiles)> {
+    let device = backend.device()?;
+    let (model, config) = load_model(checkpoint, &device)?;
+    let data_dir = match data {
+        Some(dir) => dir.to_path_buf(),
+        None => ensure_synthetic_dataset(&config.data, options.progress)?,
+    };
+    let reader = DatasetReader::open(&data_dir)?;
+    let lpips = Lpips::load_default(lpips_weights, &device)?;
+    let resolution = config.model.resolution as u32;
+    let (evaluation, grids) = evaluate(&model, &reader, resolution, Some(&lpips), &device, options)?;
+    let title = format!(
+        "{} on {} ({backend})",
+        checkpoint.display(),
+        data_dir.display()
+    );
+    let files = write_evaluation(out, &title, &evaluation, &grids)?;
+    Ok((evaluation, files))
 }
 
 /// Evaluates `model` (an inference model on `device`) on the test subjects of the dataset

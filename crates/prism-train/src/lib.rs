@@ -43,7 +43,7 @@ pub use data::{DataOrder, Prefetcher};
 pub use error::TrainError;
 pub use evaluate::{
     AngleBin, EvaluateOptions, Evaluation, EvaluationFiles, MeanScores, PerAngle, SubjectGrid,
-    evaluate, write_evaluation,
+    evaluate, evaluate_checkpoint, write_evaluation,
 };
 pub use predict::{Pairs, forward_pairs, inference_model, synthesise};
 pub use groups::{HEAD_MODULES, heads_group, heads_pattern, is_head, learning_rates};
