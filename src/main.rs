@@ -35,6 +35,8 @@ enum Command {
     /// Evaluate a checkpoint on the test subjects (PSNR, SSIM, LPIPS, FPS, report), or score
     /// any method's images with --pred/--gt.
     Evaluate(commands::evaluate::EvaluateArgs),
+    /// Novel views of a person from one photo (a +-30 degree sweep as PNGs and a GIF).
+    Infer(commands::infer::InferArgs),
 }
 
 fn main() {
@@ -48,6 +50,7 @@ fn main() {
         Command::Splat(cmd) => cmd.run(),
         Command::TrainTeacher(args) => args.run(),
         Command::Evaluate(args) => args.run(),
+        Command::Infer(args) => args.run(),
     };
     if let Err(err) = result {
         eprintln!("error: {err:#}");

@@ -6,6 +6,7 @@ pub mod body;
 pub mod data;
 pub mod evaluate;
 pub mod info;
+pub mod infer;
 pub mod metrics;
 pub mod splat;
 pub mod train;

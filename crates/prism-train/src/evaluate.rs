@@ -313,17 +313,14 @@ pub fn forward_fps(model: &Prism, pair: &Pairs, runs: usize) -> f64 {
     runs as f64 / start.elapsed().as_secs_f64()
 }
 
-/// Pools the views into bins of `ANGLE_BIN_DEG` degrees of |angle|; empty bins are left out.
-/// An angle exactly on the protocol's limit (a multiple of the bin width) falls in the bin
-/// below it.
+/// Pools the views into bins of `ANGLE_BIN_DEG` degrees of |angle|, `[from, to)`; the last bin
+/// also holds its upper bound (the protocol's +-30 degree corners); empty bins are left out.
 fn angle_bins(views: &[ViewScore], angle: impl Fn(&ViewScore) -> f32) -> Vec<AngleBin> {
+    let top = views.iter().map(|v| angle(v).abs()).fold(0.0f32, f32::max);
+    let last = ((top / ANGLE_BIN_DEG).ceil() as usize).saturating_sub(1);
     let mut bins: BTreeMap<usize, Vec<[f64; 3]>> = BTreeMap::new();
     for v in views {
-        let a = angle(v).abs();
-        let mut k = (a / ANGLE_BIN_DEG).floor() as usize;
-        if k > 0 && a == k as f32 * ANGLE_BIN_DEG {
-            k -= 1;
-        }
+        let k = ((angle(v).abs() / ANGLE_BIN_DEG).floor() as usize).min(last);
         bins.entry(k).or_default().push(v.scores);
     }
     bins.into_iter()

@@ -23,6 +23,7 @@ pub mod error;
 pub mod evaluate;
 pub mod groups;
 pub mod images;
+pub mod infer;
 pub mod log;
 pub mod parallel;
 pub mod predict;
@@ -44,6 +45,10 @@ pub use error::TrainError;
 pub use evaluate::{
     AngleBin, EvaluateOptions, Evaluation, EvaluationFiles, MeanScores, PerAngle, SubjectGrid,
     evaluate, evaluate_checkpoint, write_evaluation,
+};
+pub use infer::{
+    Framing, InferOptions, InferredPhoto, Sweep, frame_photo, frontal_camera, infer, read_photo,
+    sweep_views,
 };
 pub use predict::{Pairs, forward_pairs, inference_model, synthesise};
 pub use groups::{HEAD_MODULES, heads_group, heads_pattern, is_head, learning_rates};
