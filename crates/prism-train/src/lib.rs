@@ -27,6 +27,7 @@ pub mod infer;
 pub mod log;
 pub mod parallel;
 pub mod predict;
+pub mod quickstart;
 pub mod schedule;
 pub mod step;
 pub mod teacher;
@@ -54,6 +55,10 @@ pub use predict::{Pairs, forward_pairs, inference_model, synthesise};
 pub use groups::{HEAD_MODULES, heads_group, heads_pattern, is_head, learning_rates};
 pub use log::{METRICS_FILE, MetricsLog, read_metrics};
 pub use parallel::{DataParallel, training_devices};
+pub use quickstart::{
+    QuickstartModel, QuickstartOptions, QuickstartPlan, QuickstartReport, StudentJob,
+    compress_schedule, quickstart, quickstart_table,
+};
 pub use schedule::WarmupCosine;
 pub use step::{Prediction, StepLoss, StepValues, TRAINEE_FIELD, TrainItem, Trainee};
 pub use teacher::{TeacherLoss, TeacherTask};
