@@ -133,7 +133,10 @@ fn evaluate_writes_every_key_the_report_and_the_grids() {
     // Angle bins: 0-10, 10-20, 20-30 of |yaw| and |pitch|, together the 100 views.
     for axis in ["yaw", "pitch"] {
         let bins = v["per_angle"][axis].as_array().unwrap();
-        let from: Vec<f64> = bins.iter().map(|b| b["from_deg"].as_f64().unwrap()).collect();
+        let from: Vec<f64> = bins
+            .iter()
+            .map(|b| b["from_deg"].as_f64().unwrap())
+            .collect();
         assert_eq!(from, vec![0.0, 10.0, 20.0], "{axis}");
         let views: u64 = bins.iter().map(|b| b["views"].as_u64().unwrap()).sum();
         assert_eq!(views, 100);
@@ -149,7 +152,8 @@ fn evaluate_writes_every_key_the_report_and_the_grids() {
 
 #[test]
 fn evaluate_pred_gt_reproduces_the_reference_metrics() {
-    let reference = Path::new(env!("CARGO_MANIFEST_DIR")).join("crates/prism-losses/tests/reference");
+    let reference =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("crates/prism-losses/tests/reference");
     let dir = scratch("pred-gt");
     let (pred, gt) = (dir.join("pred"), dir.join("gt"));
     std::fs::create_dir_all(&pred).unwrap();
@@ -252,7 +256,11 @@ fn infer_writes_the_sweep_a_gif_and_the_gaussians() {
     let diff: f64 = png
         .pixels()
         .zip(last.pixels())
-        .map(|(a, b)| (0..3).map(|c| (a[c] as f64 - b[c] as f64).abs()).sum::<f64>())
+        .map(|(a, b)| {
+            (0..3)
+                .map(|c| (a[c] as f64 - b[c] as f64).abs())
+                .sum::<f64>()
+        })
         .sum::<f64>()
         / (32.0 * 32.0 * 3.0);
     assert!(diff < 12.0, "mean difference {diff}");
@@ -310,7 +318,10 @@ fn bad_input_is_one_clear_line() {
         "--out",
         s(&dir.join("o")),
     ]));
-    assert!(err.contains("photo.png") && err.contains("not a readable image"), "{err}");
+    assert!(
+        err.contains("photo.png") && err.contains("not a readable image"),
+        "{err}"
+    );
 
     let subject = std::fs::read_dir(cache.join("datasets"))
         .unwrap()

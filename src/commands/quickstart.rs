@@ -5,7 +5,9 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::Args;
 use prism_data::BackendKind;
-use prism_train::{QuickstartOptions, QuickstartPlan, distill_student, quickstart, quickstart_table};
+use prism_train::{
+    QuickstartOptions, QuickstartPlan, distill_student, quickstart, quickstart_table,
+};
 
 /// Run the whole pipeline on the small config: synthesise the default dataset, train the
 /// teacher, distil the student, evaluate both on the held-out people and print PSNR, SSIM,

@@ -174,7 +174,8 @@ pub fn evaluate_checkpoint(
     let reader = DatasetReader::open(&data_dir)?;
     let lpips = Lpips::load_default(lpips_weights, &device)?;
     let resolution = config.model.resolution as u32;
-    let (evaluation, grids) = evaluate(&model, &reader, resolution, Some(&lpips), &device, options)?;
+    let (evaluation, grids) =
+        evaluate(&model, &reader, resolution, Some(&lpips), &device, options)?;
     let title = format!(
         "{} on {} ({backend})",
         checkpoint.display(),
@@ -377,7 +378,10 @@ pub fn write_evaluation(
     let json = dir.join(EVALUATION_JSON);
     save_text(&json, &evaluation_json(evaluation))?;
     let report = dir.join(REPORT_MD);
-    save_text(&report, &markdown_report(title, evaluation, &grid_paths, dir))?;
+    save_text(
+        &report,
+        &markdown_report(title, evaluation, &grid_paths, dir),
+    )?;
     Ok(EvaluationFiles {
         json,
         report,
@@ -429,7 +433,10 @@ pub fn markdown_report(
     }
     for (axis, bins) in [("yaw", &e.per_angle.yaw), ("pitch", &e.per_angle.pitch)] {
         let _ = writeln!(out, "\n## By |{axis}|\n");
-        let _ = writeln!(out, "| abs {axis} (deg) | views | PSNR (dB) | SSIM | LPIPS |");
+        let _ = writeln!(
+            out,
+            "| abs {axis} (deg) | views | PSNR (dB) | SSIM | LPIPS |"
+        );
         let _ = writeln!(out, "|---|---:|---:|---:|---:|");
         for b in bins {
             let _ = writeln!(

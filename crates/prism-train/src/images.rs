@@ -112,7 +112,12 @@ pub fn tile(rows: &[Vec<RgbImage>]) -> RgbImage {
     for (r, row) in rows.iter().enumerate() {
         for (c, image) in row.iter().enumerate() {
             assert_eq!(image.dimensions(), (w, h), "grid images differ in size");
-            image::imageops::replace(&mut out, image, i64::from(c as u32 * w), r as i64 * h as i64);
+            image::imageops::replace(
+                &mut out,
+                image,
+                i64::from(c as u32 * w),
+                r as i64 * h as i64,
+            );
         }
     }
     out
@@ -225,9 +230,10 @@ mod tests {
             .map(|k| RgbImage::from_pixel(8, 8, Rgb([80 * k as u8, 0, 0])))
             .collect();
         save_gif(&path, &frames, 100).unwrap();
-        let decoder =
-            image::codecs::gif::GifDecoder::new(std::io::BufReader::new(fs::File::open(&path).unwrap()))
-                .unwrap();
+        let decoder = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(
+            fs::File::open(&path).unwrap(),
+        ))
+        .unwrap();
         use image::AnimationDecoder;
         let decoded = decoder.into_frames().collect_frames().unwrap();
         assert_eq!(decoded.len(), 3);

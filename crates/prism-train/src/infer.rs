@@ -196,7 +196,11 @@ pub fn frame_photo(
     };
     let premultiplied = Rgba32FImage::from_fn(w, h, |x, y| {
         let [r, g, b, a] = rgba.get_pixel(x, y).0;
-        let a = if framing == Framing::WholeImage { 1.0 } else { a };
+        let a = if framing == Framing::WholeImage {
+            1.0
+        } else {
+            a
+        };
         image::Rgba([r * a, g * a, b * a, a])
     });
     let image = resample_window(&premultiplied, (left, top, side), resolution, background);
@@ -252,7 +256,12 @@ fn bilinear(image: &Rgba32FImage, x: f32, y: f32, w: u32, h: u32) -> [f32; 4] {
             image.get_pixel(xi as u32, yi as u32).0
         }
     };
-    let (a, b, c, d) = (at(x0, y0), at(x0 + 1.0, y0), at(x0, y0 + 1.0), at(x0 + 1.0, y0 + 1.0));
+    let (a, b, c, d) = (
+        at(x0, y0),
+        at(x0 + 1.0, y0),
+        at(x0, y0 + 1.0),
+        at(x0 + 1.0, y0 + 1.0),
+    );
     std::array::from_fn(|i| {
         (a[i] * (1.0 - fx) + b[i] * fx) * (1.0 - fy) + (c[i] * (1.0 - fx) + d[i] * fx) * fy
     })
@@ -520,7 +529,11 @@ mod tests {
             }
         });
         let mask = GrayImage::from_fn(200, 100, |x, y| {
-            Luma([if (20..40).contains(&x) && (10..60).contains(&y) { 255 } else { 0 }])
+            Luma([if (20..40).contains(&x) && (10..60).contains(&y) {
+                255
+            } else {
+                0
+            }])
         });
         let framed = frame_photo(
             &DynamicImage::ImageRgba8(photo.clone()),
@@ -561,12 +574,10 @@ mod tests {
 
         // Neither: the whole photo, centre-cropped (the grey middle of the photo).
         let whole = frame_photo(
-            &DynamicImage::ImageRgb8(DynamicImage::ImageRgba8(RgbaImage::from_pixel(
-                60,
-                30,
-                Rgba([90, 90, 90, 255]),
-            ))
-            .to_rgb8()),
+            &DynamicImage::ImageRgb8(
+                DynamicImage::ImageRgba8(RgbaImage::from_pixel(60, 30, Rgba([90, 90, 90, 255])))
+                    .to_rgb8(),
+            ),
             None,
             16,
             [1.0, 1.0, 1.0],

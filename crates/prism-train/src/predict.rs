@@ -53,7 +53,10 @@ impl Pairs {
     ) -> Self {
         let (w, h) = (image.width() as usize, image.height() as usize);
         assert_eq!(
-            (source.intrinsics.width as usize, source.intrinsics.height as usize),
+            (
+                source.intrinsics.width as usize,
+                source.intrinsics.height as usize
+            ),
             (w, h),
             "the source camera must match the source image"
         );

@@ -247,7 +247,10 @@ mod tests {
         assert_eq!(plan.config.model.resolution, 64);
         compress_schedule(&mut plan.config, 30);
         // group_size 3: switches at 7, 14, 21; the last 9 steps fully linear.
-        assert_eq!((plan.config.distill.start, plan.config.distill.interval), (7, 7));
+        assert_eq!(
+            (plan.config.distill.start, plan.config.distill.interval),
+            (7, 7)
+        );
         let standard = QuickstartPlan::standard().unwrap();
         assert_eq!(standard.config.model.resolution, 128);
     }

@@ -38,7 +38,13 @@ fn quickstart_trains_evaluates_both_models_and_tabulates() {
             init: Some(teacher.to_path_buf()),
             ..run.clone()
         };
-        train(config, &TeacherTask { lpips_weights: None }, &run)
+        train(
+            config,
+            &TeacherTask {
+                lpips_weights: None,
+            },
+            &run,
+        )
     };
     let report = quickstart(&plan, &options, &student).unwrap();
     assert_eq!((report.teacher.steps, report.student.steps), (3, 2));
@@ -52,9 +58,15 @@ fn quickstart_trains_evaluates_both_models_and_tabulates() {
         assert!(model.files.grids.iter().all(|g| g.is_file()));
     }
     // The student starts from the teacher's weights, then trains on: other scores.
-    assert_ne!(report.teacher.evaluation.psnr, report.student.evaluation.psnr);
+    assert_ne!(
+        report.teacher.evaluation.psnr,
+        report.student.evaluation.psnr
+    );
     let table = quickstart_table(&report);
-    assert!(table.contains("| teacher | 3 |") && table.contains("| student | 2 |"), "{table}");
+    assert!(
+        table.contains("| teacher | 3 |") && table.contains("| student | 2 |"),
+        "{table}"
+    );
     assert!(table.contains("student report: "), "{table}");
     let _ = std::fs::remove_dir_all(&root);
 }
