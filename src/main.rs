@@ -4,6 +4,10 @@ mod commands;
 
 use clap::{Parser, Subcommand};
 
+/// Counts live heap bytes so that `prism bench` can report the peak memory of the CPU backends.
+#[global_allocator]
+static ALLOCATOR: prism_model::PeakAllocator = prism_model::PeakAllocator;
+
 /// prism: real-time single-image human frontal view synthesis (PrismMirror) on Burn.
 #[derive(Parser, Debug)]
 #[command(name = "prism", version, about, long_about = None)]
@@ -23,7 +27,8 @@ enum Command {
     Data(commands::data::DataCommand),
     /// Size and cost of a model config: parameters, attention kinds, tokens, FLOPs.
     Info(commands::info::InfoArgs),
-    /// Benchmarks (forward time of the model, ...).
+    /// Benchmarks: `--config FILE --res R1,R2` times teacher, student and all-Linear forward
+    /// passes and the training step; subcommands for narrower ones.
     Bench(commands::bench::BenchArgs),
     /// PSNR, SSIM and LPIPS of images (or folders of images) against ground truth.
     Metrics(commands::metrics::MetricsArgs),

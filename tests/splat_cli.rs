@@ -53,25 +53,33 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// `prism splat render --ply PLY --camera CAM --out OUT` followed by `extra`.
+fn render(ply: &Path, cam: &Path, out: &Path, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "splat",
+        "render",
+        "--ply",
+        s(ply),
+        "--camera",
+        s(cam),
+        "--out",
+        s(out),
+    ];
+    args.extend_from_slice(extra);
+    prism(&args)
+}
+
 #[test]
 fn renders_a_ply_file_into_a_png() {
     let dir = temp_dir("ok");
     let (ply, cam) = scene(&dir);
     let out = dir.join("out.png");
-    let run = prism(&[
-        "splat",
-        "render",
-        "--ply",
-        s(&ply),
-        "--camera",
-        s(&cam),
-        "--out",
-        s(&out),
-        "--background",
-        "0,0,1",
-        "--backend",
-        "ndarray",
-    ]);
+    let run = render(
+        &ply,
+        &cam,
+        &out,
+        &["--background", "0,0,1", "--backend", "ndarray"],
+    );
     assert!(
         run.status.success(),
         "{}",
@@ -93,18 +101,7 @@ fn renders_a_ply_file_into_a_png() {
     assert_eq!(image.get_pixel(47, 39).0, [0, 0, 255]);
     // The same on flex, the default backend.
     let out_flex = dir.join("flex.png");
-    let run = prism(&[
-        "splat",
-        "render",
-        "--ply",
-        s(&ply),
-        "--camera",
-        s(&cam),
-        "--out",
-        s(&out_flex),
-        "--background",
-        "0,0,1",
-    ]);
+    let run = render(&ply, &cam, &out_flex, &["--background", "0,0,1"]);
     assert!(run.status.success());
     assert_eq!(image::open(&out_flex).unwrap().to_rgb8(), image);
     std::fs::remove_dir_all(dir).unwrap();
@@ -129,18 +126,7 @@ fn a_bad_background_is_a_clear_error() {
         ("0,0", "expected R,G,B"),
         ("a,0,0", "`a` is not a number"),
     ] {
-        let run = prism(&[
-            "splat",
-            "render",
-            "--ply",
-            s(&ply),
-            "--camera",
-            s(&cam),
-            "--out",
-            s(&out),
-            "--background",
-            bg,
-        ]);
+        let run = render(&ply, &cam, &out, &["--background", bg]);
         assert_fails(&run, needle, &out);
     }
     std::fs::remove_dir_all(dir).unwrap();
@@ -152,55 +138,19 @@ fn missing_or_broken_inputs_are_errors_naming_the_file() {
     let (ply, cam) = scene(&dir);
     let out = dir.join("out.png");
     let missing = dir.join("missing.ply");
-    let run = prism(&[
-        "splat",
-        "render",
-        "--ply",
-        s(&missing),
-        "--camera",
-        s(&cam),
-        "--out",
-        s(&out),
-    ]);
+    let run = render(&missing, &cam, &out, &[]);
     assert_fails(&run, "missing.ply", &out);
     let broken = dir.join("broken.json");
     std::fs::write(&broken, "{\"fx\": 10}").unwrap();
-    let run = prism(&[
-        "splat",
-        "render",
-        "--ply",
-        s(&ply),
-        "--camera",
-        s(&broken),
-        "--out",
-        s(&out),
-    ]);
+    let run = render(&ply, &broken, &out, &[]);
     assert_fails(&run, "broken.json", &out);
     let not_ply = dir.join("cam-as.ply");
     std::fs::copy(&cam, &not_ply).unwrap();
-    let run = prism(&[
-        "splat",
-        "render",
-        "--ply",
-        s(&not_ply),
-        "--camera",
-        s(&cam),
-        "--out",
-        s(&out),
-    ]);
+    let run = render(&not_ply, &cam, &out, &[]);
     assert_fails(&run, "cam-as.ply", &out);
     // An output directory that does not exist: nothing is left behind.
     let nowhere = dir.join("no/such/out.png");
-    let run = prism(&[
-        "splat",
-        "render",
-        "--ply",
-        s(&ply),
-        "--camera",
-        s(&cam),
-        "--out",
-        s(&nowhere),
-    ]);
+    let run = render(&ply, &cam, &nowhere, &[]);
     assert_fails(&run, "out.png", &nowhere);
     std::fs::remove_dir_all(dir).unwrap();
 }

@@ -1,22 +1,89 @@
-//! `prism bench`: benchmarks.
+//! `prism bench`: benchmarks. `prism bench --config FILE --res R1,R2` is the speed table of a
+//! config (teacher, student and all-Linear forward, and the training step); the subcommands
+//! are the narrower benchmarks.
 
 use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use anyhow::Context;
 use clap::{Args, Subcommand};
 use prism_data::BackendKind;
-use prism_model::{AttentionKind, BenchOptions, BenchRow, bench_forward, load_config};
+use prism_data::dataset::DatasetReader;
+use prism_model::{
+    AttentionKind, BenchOptions, BenchRow, MemoryProbe, Precision, bench_forward, load_config,
+    student_kinds,
+};
+use prism_train::{
+    RunOptions, TeacherTask, TrainingConfig, Validator, ensure_synthetic_dataset, load_model,
+    read_metrics, train,
+};
 
 /// Benchmarks; results are printed as a table and optionally written as JSON.
+///
+/// Without a subcommand: the speed table of one config. Forward latency (one source/target
+/// pair, batch 1, inference, median after warm-up) and peak memory at each `--res` of the
+/// `teacher` (every block Full), the `student` (the kinds the config's `[distill]` schedule
+/// ends with) and `linear` (every block Linear), then the training step time of the teacher
+/// on the config's synthetic data. The 3DGS head (a training signal) is left out of the
+/// forward pass, as in serving.
 #[derive(Args, Debug)]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 pub struct BenchArgs {
     #[command(subcommand)]
-    command: BenchCommand,
+    command: Option<BenchCommand>,
+    #[command(flatten)]
+    table: TableArgs,
+}
+
+/// Arguments of `prism bench --config FILE ...`.
+#[derive(Args, Debug)]
+struct TableArgs {
+    /// Config file (TOML with `[model]` and `[distill]`; `[train]` and `[data]` for the
+    /// training step).
+    #[arg(long, value_name = "FILE", required = true)]
+    config: Option<PathBuf>,
+    /// Resolutions in pixels (square, comma-separated) [default: the config's].
+    #[arg(long, value_name = "R1,R2,..", value_delimiter = ',')]
+    res: Vec<usize>,
+    /// Models to time (comma-separated): teacher, student, linear.
+    #[arg(long, value_delimiter = ',', default_values = ["teacher", "student", "linear"],
+          value_parser = ["teacher", "student", "linear"])]
+    models: Vec<String>,
+    /// Backend: ndarray, flex, wgpu or cuda (the GPU ones need their cargo feature).
+    #[arg(long, default_value = "flex")]
+    backend: BackendKind,
+    /// Precision of the transformer blocks at inference: f32, f16 or bf16 (the rest of the
+    /// model stays f32).
+    #[arg(long, default_value = "f32")]
+    precision: Precision,
+    /// Untimed runs before timing.
+    #[arg(long, default_value_t = 3)]
+    warmup: usize,
+    /// Timed runs (the median is reported).
+    #[arg(long, default_value_t = 10)]
+    iters: usize,
+    /// Training steps to run for the step time (median after 2 warm-up steps); 0 skips it.
+    #[arg(long, default_value_t = 6)]
+    train_steps: usize,
+    /// Dataset for the training step [default: the config's synthetic dataset, synthesised
+    /// into the cache on first use].
+    #[arg(long, value_name = "DIR")]
+    data: Option<PathBuf>,
+    /// Also write `{"rows": [{"model", "res", "tokens", "ms", "fps", "peak_mem_bytes"}]}` to
+    /// this file (the training step is the row `train_step`, `fps` its steps per second).
+    /// `peak_mem_bytes` is the peak of the timed runs: the memory pools' bytes on GPU
+    /// backends, the heap's growth above its size before the runs on the CPU ones (for the
+    /// training step, the whole short run).
+    #[arg(long, value_name = "FILE")]
+    json: Option<PathBuf>,
 }
 
 /// What to benchmark.
 #[derive(Subcommand, Debug)]
 enum BenchCommand {
+    /// Validation PSNR of a trained checkpoint with the blocks in f32 and in half precision,
+    /// and the forward time of each.
+    Precision(PrecisionBenchArgs),
     /// Forward time per frame (one source/target pair, batch 1, inference) of model configs
     /// with every block Full and every block Linear, at several resolutions: the median after
     /// warm-up, showing how each grows with the number of tokens.
@@ -29,14 +96,14 @@ struct ModelBenchArgs {
     /// Config files to benchmark (repeat the flag for several).
     #[arg(long, value_name = "FILE", default_values = ["configs/tiny.toml"])]
     config: Vec<PathBuf>,
-    /// Resolutions in pixels (square; repeat the flag) [default: each config's resolution and
-    /// twice it].
-    #[arg(long, value_name = "PIXELS")]
+    /// Resolutions in pixels (square; repeat the flag or separate with commas) [default: each
+    /// config's resolution and twice it].
+    #[arg(long, value_name = "PIXELS", value_delimiter = ',')]
     res: Vec<usize>,
     /// Attention kinds to run every block with (repeat the flag).
     #[arg(long, value_name = "KIND", default_values = ["full", "linear"], value_parser = parse_kind)]
     attention: Vec<AttentionKind>,
-    /// Backend: ndarray, flex or wgpu.
+    /// Backend: ndarray, flex, wgpu or cuda.
     #[arg(long, default_value = "flex")]
     backend: BackendKind,
     /// Untimed runs before timing.
@@ -46,7 +113,8 @@ struct ModelBenchArgs {
     #[arg(long, default_value_t = 10)]
     iters: usize,
     /// Also write `{"rows": [{"model", "res", "tokens", "ms", "fps", "peak_mem_bytes"}]}` to
-    /// this file (`peak_mem_bytes` is null on the CPU backends, which do not report memory).
+    /// this file (`peak_mem_bytes`: the timed runs' peak, the memory pools' bytes on GPU
+    /// backends, the heap's growth above its size before the runs on the CPU ones).
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
 }
@@ -65,7 +133,9 @@ impl BenchArgs {
     /// Runs the chosen benchmark.
     pub fn run(self) -> anyhow::Result<()> {
         match self.command {
-            BenchCommand::Model(args) => args.run(),
+            Some(BenchCommand::Model(args)) => args.run(),
+            Some(BenchCommand::Precision(args)) => args.run(),
+            None => self.table.run(),
         }
     }
 }
@@ -115,16 +185,7 @@ impl ModelBenchArgs {
                 for &res in &resolutions {
                     let label = format!("{name}/{}", kind.name());
                     let row = bench_forward(&model, &label, res, &device, options);
-                    println!(
-                        "{:<16} {:>6} {:>7} {:>10.2} {:>8.2} {:>12}",
-                        row.model,
-                        row.res,
-                        row.tokens,
-                        row.ms,
-                        row.fps,
-                        row.peak_mem_bytes
-                            .map_or("n/a".to_string(), |b| b.to_string())
-                    );
+                    print_row(&row);
                     rows.push(row);
                 }
             }
@@ -146,4 +207,225 @@ fn write_json(path: &Path, rows: &[BenchRow]) -> anyhow::Result<()> {
     std::fs::write(&tmp, text + "\n").with_context(|| format!("cannot write {}", tmp.display()))?;
     std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))?;
     Ok(())
+}
+
+/// Prints one row of the table `model res tokens ms/frame fps peak_mem`.
+fn print_row(row: &BenchRow) {
+    println!(
+        "{:<16} {:>6} {:>7} {:>10.2} {:>8.2} {:>12}",
+        row.model,
+        row.res,
+        row.tokens,
+        row.ms,
+        row.fps,
+        row.peak_mem_bytes.map_or("n/a".to_string(), |b| format!(
+            "{:.1} MiB",
+            b as f64 / 1048576.0
+        ))
+    );
+}
+
+/// Checks that `precision` runs on `device`.
+fn check_precision(precision: Precision, backend: BackendKind) -> anyhow::Result<()> {
+    let device = backend.device()?;
+    if !precision.supported_on(&device) {
+        anyhow::bail!("the {backend} backend does not compute in {precision}");
+    }
+    Ok(())
+}
+
+impl TableArgs {
+    fn run(self) -> anyhow::Result<()> {
+        let path = self.config.clone().expect("clap requires --config");
+        let file = load_config(&path)?;
+        let config = file.model;
+        let resolutions = if self.res.is_empty() {
+            vec![config.resolution]
+        } else {
+            self.res.clone()
+        };
+        if let Some(bad) = resolutions
+            .iter()
+            .find(|&&r| r == 0 || !r.is_multiple_of(config.patch_size))
+        {
+            anyhow::bail!(
+                "--res {bad} is not a positive multiple of the patch size {} of {}",
+                config.patch_size,
+                path.display()
+            );
+        }
+        check_precision(self.precision, self.backend)?;
+        let training = if self.train_steps > 0 {
+            Some(TrainingConfig::load(&path)?)
+        } else {
+            None
+        };
+        let device = self.backend.device()?;
+        device.seed(0);
+        let mut model = config
+            .try_init(&device)?
+            .with_block_precision(self.precision);
+        // Serving renders the NVS decoder's image; the 3DGS head only trains.
+        model.gs_head = None;
+        let n = model.num_blocks();
+        let options = BenchOptions {
+            warmup: self.warmup,
+            iters: self.iters.max(1),
+        };
+        println!(
+            "{} on {} ({}), blocks in {}",
+            path.display(),
+            self.backend,
+            device_name(&device),
+            self.precision
+        );
+        println!(
+            "{:<16} {:>6} {:>7} {:>10} {:>8} {:>12}",
+            "model", "res", "tokens", "ms/frame", "fps", "peak_mem"
+        );
+        let mut rows = Vec::new();
+        for name in &self.models {
+            let kinds = match name.as_str() {
+                "teacher" => vec![AttentionKind::Full; n],
+                "linear" => vec![AttentionKind::Linear; n],
+                _ => student_kinds(&file.distill, n),
+            };
+            model.set_attention_kinds(&kinds);
+            for &res in &resolutions {
+                let row = bench_forward(&model, name, res, &device, options);
+                print_row(&row);
+                rows.push(row);
+            }
+        }
+        drop(model);
+        if let Some(training) = training {
+            let row = self.train_step(&training)?;
+            print_row(&row);
+            rows.push(row);
+        }
+        if let Some(path) = &self.json {
+            write_json(path, &rows)?;
+        }
+        Ok(())
+    }
+
+    /// The teacher's training step on this backend: `train_steps` steps of `prism_train::train`
+    /// (one device, no validation), the median of the logged step times after two warm-up
+    /// steps; peak memory over the whole run (model, optimizer, data, steps).
+    fn train_step(&self, config: &TrainingConfig) -> anyhow::Result<BenchRow> {
+        let mut config = config.clone();
+        let steps = self.train_steps.max(3);
+        config.train.steps = steps;
+        config.train.validate_every = 0;
+        config.train.validation_views = 1;
+        config.train.checkpoint_every = steps;
+        let data = match &self.data {
+            Some(dir) => dir.clone(),
+            None => ensure_synthetic_dataset(&config.data, true)?,
+        };
+        let out = std::env::temp_dir().join(format!("prism-bench-train-{}", std::process::id()));
+        let mut options = RunOptions::new(&out, self.backend);
+        options.data = Some(data);
+        let probe = MemoryProbe::start(&self.backend.device()?);
+        let result = train(&config, &TeacherTask::default(), &options);
+        let peak = probe.peak_bytes();
+        let metrics = result.and_then(|_| read_metrics(&out.join(prism_train::METRICS_FILE)));
+        let _ = std::fs::remove_dir_all(&out);
+        let mut times: Vec<f64> = metrics?
+            .iter()
+            .filter_map(|l| l["seconds"].as_f64())
+            .skip(2)
+            .collect();
+        anyhow::ensure!(!times.is_empty(), "the training run logged no step times");
+        times.sort_by(f64::total_cmp);
+        let ms = 1e3 * times[times.len() / 2];
+        let res = config.model.resolution;
+        let p = config.model.patch_size;
+        Ok(BenchRow {
+            model: "train_step".into(),
+            res,
+            tokens: 2 * (res / p) * (res / p),
+            ms,
+            fps: 1e3 / ms,
+            peak_mem_bytes: peak,
+        })
+    }
+}
+
+/// The adapter's name on GPU backends, the backend otherwise.
+fn device_name(device: &burn::tensor::Device) -> String {
+    format!("{device:?}")
+}
+
+/// Arguments of `prism bench precision`.
+#[derive(Args, Debug)]
+struct PrecisionBenchArgs {
+    /// Checkpoint (or run folder: its latest checkpoint) to evaluate.
+    #[arg(long, value_name = "PATH")]
+    checkpoint: PathBuf,
+    /// Dataset to validate on (its held-out subjects) [default: the checkpoint config's
+    /// synthetic dataset].
+    #[arg(long, value_name = "DIR")]
+    data: Option<PathBuf>,
+    /// Target views per held-out subject (evenly spread over views 1..=100).
+    #[arg(long, default_value_t = 8)]
+    views: usize,
+    /// Half precision to compare with f32: f16 or bf16.
+    #[arg(long, default_value = "f16")]
+    precision: Precision,
+    /// Backend: ndarray, flex, wgpu or cuda.
+    #[arg(long, default_value = "flex")]
+    backend: BackendKind,
+}
+
+impl PrecisionBenchArgs {
+    fn run(self) -> anyhow::Result<()> {
+        check_precision(self.precision, self.backend)?;
+        let device = self.backend.device()?;
+        let (model, config) = load_model(&self.checkpoint, &device)?;
+        let data = match &self.data {
+            Some(dir) => dir.clone(),
+            None => ensure_synthetic_dataset(&config.data, true)?,
+        };
+        let reader = DatasetReader::open(&data)?;
+        let validator = Validator::new(
+            &reader,
+            config.model.resolution as u32,
+            self.views,
+            None,
+            &device,
+        )?;
+        println!(
+            "{} on {}: {} held-out views at {} px",
+            self.checkpoint.display(),
+            self.backend,
+            validator.len(),
+            config.model.resolution
+        );
+        println!(
+            "{:<10} {:>10} {:>8} {:>12}",
+            "blocks", "PSNR (dB)", "SSIM", "s (all views)"
+        );
+        let mut psnr = Vec::new();
+        for precision in [Precision::F32, self.precision] {
+            let model = model.clone().with_block_precision(precision);
+            let start = Instant::now();
+            let (scores, _) = validator.validate(&model);
+            let seconds = start.elapsed().as_secs_f64();
+            println!(
+                "{:<10} {:>10.6} {:>8.6} {:>12.2}",
+                precision.to_string(),
+                scores.psnr,
+                scores.ssim,
+                seconds
+            );
+            psnr.push(scores.psnr);
+        }
+        println!(
+            "PSNR change {} - f32: {:+.6} dB",
+            self.precision,
+            psnr[1] - psnr[0]
+        );
+        Ok(())
+    }
 }

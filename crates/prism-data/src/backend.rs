@@ -17,11 +17,14 @@ pub enum BackendKind {
     Flex,
     /// The wgpu GPU backend (Vulkan, Metal, DX12); needs the `wgpu` cargo feature.
     Wgpu,
+    /// Burn's CUDA backend (NVIDIA GPUs, CUDA driver loaded at run time); needs the `cuda`
+    /// cargo feature.
+    Cuda,
 }
 
 impl BackendKind {
     /// Every backend name, for help texts.
-    pub const NAMES: [&'static str; 3] = ["ndarray", "flex", "wgpu"];
+    pub const NAMES: [&'static str; 4] = ["ndarray", "flex", "wgpu", "cuda"];
 
     /// The inference device of this backend.
     ///
@@ -36,6 +39,10 @@ impl BackendKind {
             Self::Wgpu => Ok(Device::wgpu(Default::default())),
             #[cfg(not(feature = "wgpu"))]
             Self::Wgpu => Err(BackendError::NotCompiled("wgpu")),
+            #[cfg(feature = "cuda")]
+            Self::Cuda => Ok(Device::cuda(0)),
+            #[cfg(not(feature = "cuda"))]
+            Self::Cuda => Err(BackendError::NotCompiled("cuda")),
         }
     }
 
@@ -49,7 +56,7 @@ impl BackendKind {
 #[derive(Debug, thiserror::Error)]
 pub enum BackendError {
     /// The name is not a backend.
-    #[error("unknown backend `{0}` (expected one of: ndarray, flex, wgpu)")]
+    #[error("unknown backend `{0}` (expected one of: ndarray, flex, wgpu, cuda)")]
     Unknown(String),
     /// The backend exists but this build does not include it.
     #[error("the `{0}` backend is not compiled in: rebuild with `--features {0}`")]
@@ -64,6 +71,7 @@ impl FromStr for BackendKind {
             "ndarray" => Ok(Self::Ndarray),
             "flex" => Ok(Self::Flex),
             "wgpu" => Ok(Self::Wgpu),
+            "cuda" => Ok(Self::Cuda),
             _ => Err(BackendError::Unknown(s.to_string())),
         }
     }
@@ -75,6 +83,7 @@ impl fmt::Display for BackendKind {
             Self::Ndarray => "ndarray",
             Self::Flex => "flex",
             Self::Wgpu => "wgpu",
+            Self::Cuda => "cuda",
         })
     }
 }

@@ -239,21 +239,16 @@ impl SelfAttention {
     pub fn project(&self, x: Tensor<3>) -> (Tensor<4>, Tensor<4>, Tensor<4>) {
         let [batch, tokens, width] = x.dims();
         let head_dim = width / self.heads;
-        // [B, T, 3, H, d_h] -> [3, B, H, T, d_h]
+        // [B, T, 3, H, d_h] -> [3 B, H, T, d_h]: one copy into head-major order, after which q,
+        // k and v are contiguous slices of it (no copy each).
         let qkv = self
             .qkv
             .forward(x)
             .reshape([batch, tokens, 3, self.heads, head_dim])
-            .permute([2, 0, 3, 1, 4]);
-        let mut parts = qkv
-            .chunk(3, 0)
-            .into_iter()
-            .map(|t| t.reshape([batch, self.heads, tokens, head_dim]));
-        let (q, k, v) = (
-            parts.next().expect("q"),
-            parts.next().expect("k"),
-            parts.next().expect("v"),
-        );
+            .permute([2, 0, 3, 1, 4])
+            .reshape([3 * batch, self.heads, tokens, head_dim]);
+        let part = |i: usize| qkv.clone().narrow(0, i * batch, batch);
+        let (q, k, v) = (part(0), part(1), part(2));
         (self.q_norm.forward(q), self.k_norm.forward(k), v)
     }
 

@@ -1,6 +1,7 @@
-//! Forward-time benchmark of the model (what `prism bench model` runs): time per frame of one
-//! (source, target) pair, median over repeated runs after warm-up, inference mode (no
-//! autodiff, so Full attention goes through Burn's fused op).
+//! Forward-time benchmark of the model (what `prism bench` and `prism bench model` run): time
+//! per frame of one (source, target) pair, median over repeated runs after warm-up, inference
+//! mode (no autodiff, so Full attention goes through Burn's fused op), and the peak memory of
+//! the timed runs ([`MemoryProbe`]).
 
 use std::time::Instant;
 
@@ -10,8 +11,19 @@ use prism_data::rays::plucker_rays;
 use prism_data::{Camera, Intrinsics};
 use serde::Serialize;
 
+use crate::attention::AttentionKind;
+use crate::distill::{DistillConfig, progressive_schedule};
+use crate::memory::MemoryProbe;
 use crate::prism::Prism;
 use crate::views::Views;
+
+/// The attention kinds the distilled student ends with: the progressive schedule after its
+/// last switch (`group_size - 1` Linear blocks in every full group, the last block of each
+/// group Full; paper scale: 30 of 36 blocks Linear).
+pub fn student_kinds(distill: &DistillConfig, num_blocks: usize) -> Vec<AttentionKind> {
+    let last_switch = distill.start + distill.interval * distill.group_size.max(1);
+    progressive_schedule(last_switch, distill, num_blocks)
+}
 
 /// Views of `b` pairs as the viewing protocol makes them, at `res x res`: the frontal source
 /// camera and targets 20 degrees to the side and 10 degrees up (and further pairs spread
@@ -42,9 +54,9 @@ pub struct BenchRow {
     pub ms: f64,
     /// `1000 / ms`.
     pub fps: f64,
-    /// Bytes the device's allocator had reserved after the timed runs (an upper bound of the
-    /// peak in use, as pools keep freed pages); `None` where the backend does not report it
-    /// (the CPU backends ndarray and flex).
+    /// Peak memory of the timed runs in bytes, as [`MemoryProbe`] measures it: the device
+    /// pool's reservation on wgpu / cuda, the growth of the process's resident set on the CPU
+    /// backends (Linux); `None` where neither is available.
     pub peak_mem_bytes: Option<u64>,
 }
 
@@ -87,11 +99,14 @@ pub fn bench_forward(
     for _ in 0..options.warmup {
         run();
     }
+    let mut probe = MemoryProbe::start(device);
     let mut times: Vec<f64> = (0..options.iters.max(1))
         .map(|_| {
             let start = Instant::now();
             run();
-            start.elapsed().as_secs_f64() * 1e3
+            let ms = start.elapsed().as_secs_f64() * 1e3;
+            probe.sample();
+            ms
         })
         .collect();
     times.sort_by(|a, b| a.total_cmp(b));
@@ -103,7 +118,7 @@ pub fn bench_forward(
         tokens: 2 * (res / patch) * (res / patch),
         ms,
         fps: 1e3 / ms,
-        peak_mem_bytes: device.memory_pool_usage().map(|u| u.bytes_reserved),
+        peak_mem_bytes: probe.peak_bytes(),
     }
 }
 
@@ -114,5 +129,34 @@ fn median(sorted: &[f64]) -> f64 {
         sorted[n / 2]
     } else {
         0.5 * (sorted[n / 2 - 1] + sorted[n / 2])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn student_kinds_are_the_schedule_after_its_last_switch() {
+        let count = |kinds: &[AttentionKind]| {
+            kinds
+                .iter()
+                .filter(|&&k| k == AttentionKind::Linear)
+                .count()
+        };
+        let paper = DistillConfig::new();
+        let kinds = student_kinds(&paper, 36);
+        assert_eq!(count(&kinds), 30);
+        assert_eq!(kinds, progressive_schedule(10_000_000, &paper, 36));
+        // All switches at once, and a short last group that keeps its last block Full.
+        let at_once = DistillConfig::new()
+            .with_group_size(3)
+            .with_start(0)
+            .with_interval(0);
+        let letters: String = student_kinds(&at_once, 8)
+            .iter()
+            .map(|k| k.letter())
+            .collect();
+        assert_eq!(letters, "LLFLLFLF");
     }
 }

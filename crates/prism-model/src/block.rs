@@ -120,6 +120,11 @@ impl PrismBlock {
         x.clone() + self.mlp.forward(self.mlp_norm.forward(x))
     }
 
+    /// The dtype of the block's weights (`f32` unless cast for half-precision inference).
+    pub fn dtype(&self) -> burn::tensor::DType {
+        self.attention.qkv.weight.val().dtype()
+    }
+
     /// The block's attention kind.
     pub fn attention_kind(&self) -> AttentionKind {
         self.attention.kind()

@@ -24,9 +24,11 @@ pub mod gaussian_head;
 pub mod head;
 pub mod info;
 pub mod injection;
+pub mod memory;
 pub mod patch;
 pub mod placement;
 pub mod point_branch;
+pub mod precision;
 pub mod prism;
 pub mod rotation;
 pub mod smplx_branch;
@@ -41,7 +43,7 @@ pub use attention::{
     AttentionKind, FeatureMap, SelfAttention, SelfAttentionConfig, fused_attention,
     linear_attention, softmax_attention,
 };
-pub use bench::{BenchOptions, BenchRow, bench_forward, protocol_views};
+pub use bench::{BenchOptions, BenchRow, bench_forward, protocol_views, student_kinds};
 pub use block::{Mlp, PrismBlock, PrismBlockConfig};
 pub use config::{AttentionPattern, ModelConfigFile, PrismConfig, load_config, parse_config};
 pub use distill::{DistillConfig, DistillLayers, progressive_schedule};
@@ -51,8 +53,10 @@ pub use gaussian_head::{GaussianHead, GaussianHeadConfig, GaussianOutput};
 pub use head::{NvsHead, NvsHeadConfig};
 pub use info::{BlockInfo, FlopCounts, ModelInfo, ParameterCounts};
 pub use injection::{Injection, InjectionConfig, ZeroConv};
+pub use memory::{MemoryProbe, PeakAllocator};
 pub use patch::{patchify, unpatchify};
 pub use point_branch::{PointBranch, PointBranchConfig, PointOutput};
+pub use precision::Precision;
 pub use prism::{Prism, PrismOutput};
 pub use smplx_branch::{SmplxBranch, SmplxBranchConfig, SmplxOutput, SmplxTargets};
 pub use stages::{HiddenStates, StageOne, StageThree};

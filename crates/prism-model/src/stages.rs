@@ -5,6 +5,7 @@ use burn::module::Module;
 use burn::tensor::Tensor;
 
 use crate::block::PrismBlock;
+use crate::precision::cast;
 
 /// Collects the hidden states (block outputs) of chosen blocks during a forward pass, in the
 /// order they were asked for. Blocks are named by their global index `0..M+N` (stage I's
@@ -27,6 +28,11 @@ impl HiddenStates {
     /// Whether nothing is asked for.
     pub fn is_empty(&self) -> bool {
         self.wanted.is_empty()
+    }
+
+    /// Whether the output of block `index` is asked for.
+    pub fn wants(&self, index: usize) -> bool {
+        self.wanted.contains(&index)
     }
 
     /// Records `x` as the output of block `index` if that block was asked for.
@@ -63,17 +69,26 @@ impl HiddenStates {
 }
 
 /// Runs `blocks` on `x`, tapping block outputs; the first block has global index `first`.
+/// When the blocks hold half-precision weights ([`crate::Precision`]), `x` is cast to their
+/// dtype once on the way in, and the output and the tapped states back to `x`'s dtype.
 fn run_blocks(
     blocks: &[PrismBlock],
-    mut x: Tensor<3>,
+    x: Tensor<3>,
     first: usize,
     hidden: &mut HiddenStates,
 ) -> Tensor<3> {
+    let Some(dtype) = blocks.first().map(PrismBlock::dtype) else {
+        return x;
+    };
+    let outer = x.dtype();
+    let mut x = cast(x, dtype);
     for (offset, block) in blocks.iter().enumerate() {
         x = block.forward(x);
-        hidden.record(first + offset, &x);
+        if hidden.wants(first + offset) {
+            hidden.record(first + offset, &cast(x.clone(), outer));
+        }
     }
-    x
+    cast(x, outer)
 }
 
 /// Stage I, the encoder: `T_mid = T^(0 -> M-1)(T_in)`.

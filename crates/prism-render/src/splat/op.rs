@@ -47,7 +47,7 @@ pub struct SplatInputs<B: Backend> {
 pub struct SplatCameras(pub Arc<[Camera]>);
 
 /// The Gaussian rasterizer as a backend operation.
-#[backend_extension(Autodiff, Flex, NdArray, Cube: cfg(feature = "wgpu"))]
+#[backend_extension(Autodiff, Flex, NdArray, Cube: cfg(any(feature = "wgpu", feature = "cuda")))]
 pub trait SplatBackend: Backend {
     /// Renders `B x N` Gaussians into `B` cameras: `[B, C + 2, H, W]` holding the composited
     /// features, the alpha `1 - T` and the accumulated depth `sum_i w_i z_i`.
@@ -139,7 +139,7 @@ impl SplatBackend for NdArray {
     }
 }
 
-#[cfg(feature = "wgpu")]
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
 impl SplatBackend for burn::backend::Cube {
     fn splat_rasterize(inputs: SplatInputs<Self>, cameras: SplatCameras) -> FloatTensor<Self> {
         forward_on_host::<Self>(inputs, &cameras).0

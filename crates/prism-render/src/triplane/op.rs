@@ -18,7 +18,7 @@ use super::host::{self, Dims};
 use crate::transfer::{to_device, to_host};
 
 /// Triplane sampling as a backend operation.
-#[backend_extension(Autodiff, Flex, NdArray, Cube: cfg(feature = "wgpu"))]
+#[backend_extension(Autodiff, Flex, NdArray, Cube: cfg(any(feature = "wgpu", feature = "cuda")))]
 pub trait TriplaneBackend: Backend {
     /// Samples `planes` `[3, C, R, R]` at `coords` `[B, 3, H, W]` (in `[-1, 1]`): `[B, C, H, W]`,
     /// the sum of the three planes' bilinear samples.
@@ -86,7 +86,7 @@ impl TriplaneBackend for NdArray {
     }
 }
 
-#[cfg(feature = "wgpu")]
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
 impl TriplaneBackend for burn::backend::Cube {
     fn triplane_sample(planes: FloatTensor<Self>, coords: FloatTensor<Self>) -> FloatTensor<Self> {
         forward_on_host::<Self>(planes, coords).0

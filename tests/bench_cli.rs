@@ -1,0 +1,146 @@
+//! End-to-end tests of `prism bench --config FILE --res ...` through the built binary (flex,
+//! the default backend), on the tiny config at tiny resolutions.
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+use prism_train::{TrainingConfig, configs_dir};
+
+/// A scratch folder for one test, removed first.
+fn scratch(test: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("prism-bench-cli-{}-{test}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// configs/tiny.toml at 32 px without LPIPS, its synthetic data 4 subjects of 32 px, written
+/// into `dir`.
+fn tiny_config(dir: &std::path::Path) -> PathBuf {
+    let mut c = TrainingConfig::load(configs_dir().join("tiny.toml")).unwrap();
+    c.model.resolution = 32;
+    c.losses.lpips = 0.0;
+    c.data.subjects = 4;
+    c.data.resolution = 32;
+    c.data.test_fraction = 0.25;
+    let path = dir.join("bench.toml");
+    std::fs::write(&path, c.to_toml()).unwrap();
+    path
+}
+
+fn prism(args: &[&str], cache: &std::path::Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_prism"))
+        .args(args)
+        .env(prism_train::CACHE_ENV, cache)
+        .output()
+        .expect("run prism")
+}
+
+#[test]
+fn bench_times_teacher_student_linear_and_the_training_step() {
+    let dir = scratch("table");
+    let config = tiny_config(&dir);
+    let json = dir.join("out/bench.json");
+    let out = prism(
+        &[
+            "bench",
+            "--config",
+            config.to_str().unwrap(),
+            "--res",
+            "16,32",
+            "--warmup",
+            "1",
+            "--iters",
+            "2",
+            "--train-steps",
+            "3",
+            "--json",
+            json.to_str().unwrap(),
+        ],
+        &dir.join("cache"),
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let value: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let rows = value["rows"].as_array().unwrap();
+    let names: Vec<(&str, u64)> = rows
+        .iter()
+        .map(|r| (r["model"].as_str().unwrap(), r["res"].as_u64().unwrap()))
+        .collect();
+    assert_eq!(
+        names,
+        [
+            ("teacher", 16),
+            ("teacher", 32),
+            ("student", 16),
+            ("student", 32),
+            ("linear", 16),
+            ("linear", 32),
+            ("train_step", 32),
+        ]
+    );
+    for row in rows {
+        let ms = row["ms"].as_f64().unwrap();
+        let fps = row["fps"].as_f64().unwrap();
+        assert!(ms > 0.0 && (fps * ms - 1000.0).abs() < 1e-6, "{row}");
+        let res = row["res"].as_u64().unwrap();
+        assert_eq!(row["tokens"].as_u64().unwrap(), 2 * (res / 8) * (res / 8));
+        // The binary counts its heap: the CPU backend's peak is measured, never null.
+        let peak = row["peak_mem_bytes"]
+            .as_u64()
+            .expect("peak memory measured");
+        assert!(peak > 0, "{row}");
+    }
+    // The training run holds the model, its optimizer state and a batch's graph: more than
+    // one inference forward pass at the same size.
+    let peak = |i: usize| rows[i]["peak_mem_bytes"].as_u64().unwrap();
+    assert!(
+        peak(6) > peak(1),
+        "train {} vs forward {}",
+        peak(6),
+        peak(1)
+    );
+    // Bigger images need more memory for the same model.
+    assert!(peak(1) > peak(0), "32 px {} vs 16 px {}", peak(1), peak(0));
+    assert!(stdout.contains("train_step"), "{stdout}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn bench_rejects_a_resolution_that_is_not_a_multiple_of_the_patch() {
+    let dir = scratch("bad-res");
+    let config = tiny_config(&dir);
+    let out = prism(
+        &[
+            "bench",
+            "--config",
+            config.to_str().unwrap(),
+            "--res",
+            "32,20",
+        ],
+        &dir.join("cache"),
+    );
+    assert_eq!(out.status.code(), Some(1));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("--res 20") && stderr.contains("patch size 8"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn bench_needs_a_config_or_a_subcommand() {
+    let dir = scratch("no-config");
+    let out = prism(&["bench"], &dir.join("cache"));
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("--config"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

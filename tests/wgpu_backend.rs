@@ -1,0 +1,186 @@
+//! The wgpu backend agrees with flex: a forward pass of the tiny model (geometry parts
+//! included) and one training step (teacher objective, backward, AdamW update) from the same
+//! weights on the same batch.
+//!
+//! Runs with `--features wgpu` on a machine with a Vulkan / Metal / DX12 adapter; Mesa's
+//! software Vulkan (lavapipe, Debian package `mesa-vulkan-drivers`) is enough, and `.ci/run`
+//! installs it. Without an adapter the tests say so and pass, unless `PRISM_REQUIRE_WGPU=1`
+//! (set by CI), which turns the missing adapter into a failure.
+#![cfg(feature = "wgpu")]
+
+use std::path::Path;
+
+use burn::module::{Module, ModuleVisitor, Param};
+use burn::optim::{AdamWConfig, GradientsParams};
+use burn::tensor::{Device, Tensor};
+use prism_data::BackendKind;
+use prism_data::dataset::{
+    DatasetReader, PrismBatch, PrismBatcher, SampleDataset, SplitKind, TargetSelection,
+};
+use prism_model::{Prism, protocol_views};
+use prism_train::{StepLoss, TeacherLoss, TrainingConfig, ensure_synthetic_dataset};
+
+/// The wgpu device when an adapter answers, else `None` (or a panic under CI's
+/// `PRISM_REQUIRE_WGPU=1`).
+fn wgpu_device() -> Option<Device> {
+    let device = BackendKind::Wgpu
+        .device()
+        .expect("built with --features wgpu");
+    let probe = device.clone();
+    let works = std::panic::catch_unwind(move || {
+        Tensor::<1>::from_floats([1.0, 2.0], &probe)
+            .sum()
+            .into_scalar::<f32>()
+            == 3.0
+    });
+    match works {
+        Ok(true) => Some(device),
+        _ if std::env::var_os("PRISM_REQUIRE_WGPU").is_some() => {
+            panic!("PRISM_REQUIRE_WGPU is set but no wgpu adapter works (install Mesa's lavapipe)")
+        }
+        _ => {
+            eprintln!("skipped: no wgpu adapter (install mesa-vulkan-drivers for lavapipe)");
+            None
+        }
+    }
+}
+
+fn tiny() -> TrainingConfig {
+    let mut config =
+        TrainingConfig::load(Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/tiny.toml"))
+            .expect("tiny config");
+    // LPIPS weighs in through the same tensor ops; leaving it out keeps the test fast.
+    config.losses.lpips = 0.0;
+    config
+}
+
+/// Every float parameter's values, in visiting order.
+fn parameters(model: &Prism) -> Vec<Vec<f32>> {
+    struct Collect(Vec<Vec<f32>>);
+    impl ModuleVisitor for Collect {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            self.0.push(values(&param.val()));
+        }
+    }
+    let mut collect = Collect(Vec::new());
+    model.visit(&mut collect);
+    collect.0
+}
+
+fn values<const D: usize>(t: &Tensor<D>) -> Vec<f32> {
+    t.to_data()
+        .convert::<f32>()
+        .try_to_vec::<f32>()
+        .expect("f32")
+}
+
+/// Largest `|a - b|` relative to the largest `|b|`.
+fn relative_error(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    let scale = b.iter().fold(1e-6f32, |m, v| m.max(v.abs()));
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
+        / scale
+}
+
+#[test]
+fn tiny_forward_on_wgpu_matches_flex() {
+    let Some(wgpu) = wgpu_device() else { return };
+    let flex = Device::flex();
+    flex.seed(5);
+    let config = tiny();
+    let model = config.model.init(&flex);
+    let res = 32;
+    let views = protocol_views(2, res);
+    flex.seed(6);
+    let image = Tensor::<4>::random(
+        [2, 3, res, res],
+        burn::tensor::Distribution::Uniform(0.0, 1.0),
+        &flex,
+    );
+    let run = |model: &Prism, device: &Device| {
+        let rays = |cams| prism_data::rays::plucker_rays(cams, device);
+        let out = model.forward_views(
+            image.clone().to_device(device),
+            rays(&views.source),
+            rays(&views.target),
+            &views,
+            &[1, 4],
+        );
+        let gs = out.gaussians.expect("tiny has the 3DGS head").image;
+        (values(&out.image), values(&out.hidden[1]), values(&gs))
+    };
+    let want = run(&model, &flex);
+    let got = run(&model.clone().to_device(&wgpu), &wgpu);
+    for (name, g, w) in [
+        ("image", &got.0, &want.0),
+        ("hidden 4", &got.1, &want.1),
+        ("I_gs", &got.2, &want.2),
+    ] {
+        let err = relative_error(g, w);
+        assert!(err < 1e-3, "{name}: relative error {err}");
+    }
+}
+
+/// One teacher step (forward, objective, backward, AdamW) on a batch of the tiny synthetic
+/// dataset, from the same weights: the same loss and the same updated weights.
+#[test]
+fn one_training_step_on_wgpu_matches_flex() {
+    let Some(wgpu) = wgpu_device() else { return };
+    let config = tiny();
+    let data = ensure_synthetic_dataset(&config.data, false).expect("tiny synthetic dataset");
+    let reader = DatasetReader::open(&data).expect("dataset");
+    let background = reader.meta().background;
+    let dataset = SampleDataset::new(
+        reader,
+        SplitKind::Train,
+        TargetSelection::Random {
+            count: 2,
+            repeats: 1,
+        },
+        Some((32, 32)),
+        0,
+    )
+    .expect("samples");
+    let samples = vec![dataset.load(0).unwrap(), dataset.load(1).unwrap()];
+    let flex = Device::flex();
+    flex.seed(7);
+    let initial = config.model.init(&flex);
+
+    let step = |device: &Device| {
+        let ad = device.clone().autodiff();
+        let batch: PrismBatch = PrismBatcher.batch_samples(&samples, &ad);
+        // Moved onto the autodiff device, `train` turns the parameters' gradients on.
+        let model = initial.clone().to_device(&ad).train();
+        let loss = TeacherLoss::new(&config, background, None, &ad).expect("objective");
+        let terms = loss.loss(&model, &batch, 0);
+        let total = values(&terms.total.clone().inner())[0];
+        let grads = GradientsParams::from_grads(terms.total.backward(), &model);
+        let mut optim = AdamWConfig::new().init();
+        let model = optim.step(1e-3, model, grads);
+        (total, parameters(&model.valid()))
+    };
+    let (loss_flex, params_flex) = step(&flex);
+    let (loss_wgpu, params_wgpu) = step(&wgpu);
+    assert!(loss_flex.is_finite() && loss_flex > 0.0);
+    assert!(
+        (loss_wgpu - loss_flex).abs() <= 1e-4 * loss_flex.abs(),
+        "loss {loss_wgpu} on wgpu vs {loss_flex} on flex"
+    );
+    let before = parameters(&initial);
+    let mut moved = 0;
+    for ((w, f), b) in params_wgpu.iter().zip(&params_flex).zip(&before) {
+        // AdamW's first step moves every weight with a gradient by about lr: compare the
+        // updates, not the weights, so that a small update is not hidden by a large weight.
+        let update_w: Vec<f32> = w.iter().zip(b).map(|(x, y)| x - y).collect();
+        let update_f: Vec<f32> = f.iter().zip(b).map(|(x, y)| x - y).collect();
+        if update_f.iter().any(|u| u.abs() > 1e-6) {
+            moved += 1;
+        }
+        let err = relative_error(&update_w, &update_f);
+        assert!(err < 2e-2, "update differs by {err} (relative)");
+    }
+    assert!(moved > 10, "only {moved} parameters moved");
+}
