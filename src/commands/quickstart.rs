@@ -15,7 +15,7 @@ use prism_train::{
 ///
 /// The step counts are scaled down from the config's so the job fits about 25 minutes on a
 /// 2-core CPU (flex): 300 teacher and 150 student steps, 25 target views per test subject.
-/// --fast uses the tiny config (60 and 30 steps, 10 views): a few minutes.
+/// --fast uses the tiny config (120 and 60 steps, 10 views): a few minutes.
 #[derive(Args, Debug)]
 pub struct QuickstartArgs {
     /// The tiny config and fewer steps: a few minutes instead of about 25.

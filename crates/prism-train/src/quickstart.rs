@@ -56,7 +56,7 @@ impl QuickstartPlan {
         })
     }
 
-    /// `--fast`: the tiny config, 60 teacher and 30 student steps, 10 views per test subject.
+    /// `--fast`: the tiny config, 120 teacher and 60 student steps, 10 views per test subject.
     ///
     /// # Errors
     /// Never for the shipped config; a parse error otherwise.
@@ -64,8 +64,8 @@ impl QuickstartPlan {
         Ok(Self {
             name: "tiny".into(),
             config: TrainingConfig::parse(TINY_CONFIG, Path::new("configs/tiny.toml"))?,
-            teacher_steps: 60,
-            student_steps: 30,
+            teacher_steps: 120,
+            student_steps: 60,
             eval_views: 10,
         })
     }
