@@ -47,14 +47,14 @@ pub use evaluate::{
     AngleBin, EvaluateOptions, Evaluation, EvaluationFiles, MeanScores, PerAngle, SubjectGrid,
     evaluate, evaluate_checkpoint, write_evaluation,
 };
+pub use groups::{HEAD_MODULES, heads_group, heads_pattern, is_head, learning_rates};
 pub use infer::{
     Framing, InferOptions, InferredPhoto, Sweep, frame_photo, frontal_camera, infer, read_photo,
     sweep_views,
 };
-pub use predict::{Pairs, forward_pairs, inference_model, synthesise};
-pub use groups::{HEAD_MODULES, heads_group, heads_pattern, is_head, learning_rates};
 pub use log::{METRICS_FILE, MetricsLog, read_metrics};
 pub use parallel::{DataParallel, training_devices};
+pub use predict::{Pairs, forward_pairs, inference_model, synthesise};
 pub use quickstart::{
     QuickstartModel, QuickstartOptions, QuickstartPlan, QuickstartReport, StudentJob,
     compress_schedule, quickstart, quickstart_table,
