@@ -39,6 +39,11 @@ enum Command {
     TrainTeacher(commands::train::TrainTeacherArgs),
     /// Distil the linear-attention student from a teacher (progressive schedule, ablations).
     DistillStudent(commands::distill::DistillStudentArgs),
+    /// Evaluate a checkpoint on the test subjects (PSNR, SSIM, LPIPS, FPS, report), or score
+    /// any method's images with --pred/--gt.
+    Evaluate(commands::evaluate::EvaluateArgs),
+    /// Novel views of a person from one photo (a +-30 degree sweep as PNGs and a GIF).
+    Infer(commands::infer::InferArgs),
 }
 
 fn main() {
@@ -52,6 +57,8 @@ fn main() {
         Command::Splat(cmd) => cmd.run(),
         Command::TrainTeacher(args) => args.run(),
         Command::DistillStudent(args) => args.run(),
+        Command::Evaluate(args) => args.run(),
+        Command::Infer(args) => args.run(),
     };
     if let Err(err) = result {
         eprintln!("error: {err:#}");

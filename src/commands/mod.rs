@@ -5,6 +5,8 @@ pub mod bench;
 pub mod body;
 pub mod data;
 pub mod distill;
+pub mod evaluate;
+pub mod infer;
 pub mod info;
 pub mod metrics;
 pub mod splat;

@@ -12,6 +12,8 @@
 //!   resumed run continues exactly; the default synthetic dataset lives in [`cache_dir`].
 //! - Teacher: [`TeacherTask`] / [`TeacherLoss`].
 //! - Student: [`StudentTask`] / [`StudentLoss`] with [`student_config`] (distillation).
+//! - Evaluation ([`evaluate`]: the paper's protocol, per-angle breakdown, FPS, report) and
+//!   inference from a photo ([`infer`]), both through [`predict`]; images in [`images`].
 
 pub mod cache;
 pub mod checkpoint;
@@ -19,9 +21,14 @@ pub mod clip;
 pub mod config;
 pub mod data;
 pub mod error;
+pub mod evaluate;
 pub mod groups;
+pub mod images;
+pub mod infer;
 pub mod log;
 pub mod parallel;
+pub mod predict;
+pub mod quickstart;
 pub mod schedule;
 pub mod step;
 pub mod student;
@@ -38,9 +45,22 @@ pub use clip::{clip_global_norm, global_norm, parameter_values};
 pub use config::{SyntheticDataConfig, TrainConfig, TrainingConfig, config_name, configs_dir};
 pub use data::{DataOrder, Prefetcher};
 pub use error::TrainError;
+pub use evaluate::{
+    AngleBin, EvaluateOptions, Evaluation, EvaluationFiles, MeanScores, PerAngle, SubjectGrid,
+    evaluate, evaluate_checkpoint, write_evaluation,
+};
 pub use groups::{HEAD_MODULES, heads_group, heads_pattern, is_head, learning_rates};
+pub use infer::{
+    Framing, InferOptions, InferredPhoto, Sweep, frame_photo, frontal_camera, infer, read_photo,
+    sweep_views,
+};
 pub use log::{METRICS_FILE, MetricsLog, read_metrics};
 pub use parallel::{DataParallel, training_devices};
+pub use predict::{Pairs, forward_pairs, inference_model, synthesise};
+pub use quickstart::{
+    QuickstartModel, QuickstartOptions, QuickstartPlan, QuickstartReport, StudentJob,
+    compress_schedule, quickstart, quickstart_table,
+};
 pub use schedule::WarmupCosine;
 pub use step::{Prediction, StepLoss, StepValues, TRAINEE_FIELD, TrainItem, Trainee};
 pub use student::{StudentLoss, StudentTask, kinds_letters, student_config};

@@ -1,0 +1,257 @@
+//! `prism quickstart`: the whole pipeline on the shipped configs in one command. Synthesises
+//! the default dataset, trains the teacher, distils the student from it, evaluates both and
+//! tabulates PSNR, SSIM, LPIPS and FPS.
+//!
+//! The step counts are scaled down from the configs' so the whole job fits a time budget on a
+//! 2-core CPU ([`QuickstartPlan::standard`]: the small config, about 25 minutes;
+//! [`QuickstartPlan::fast`]: the tiny config, a few minutes); the distillation schedule is
+//! compressed to the student's steps ([`compress_schedule`]).
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use prism_data::BackendKind;
+
+use crate::cache::ensure_synthetic_dataset;
+use crate::config::TrainingConfig;
+use crate::error::Result;
+use crate::evaluate::{EvaluateOptions, Evaluation, EvaluationFiles, evaluate_checkpoint};
+use crate::teacher::TeacherTask;
+use crate::trainer::{RunOptions, RunSummary, train};
+
+/// The small config (128 px), shipped in the binary so quickstart runs from any folder.
+pub const SMALL_CONFIG: &str = include_str!("../../../configs/small.toml");
+/// The tiny config (64 px).
+pub const TINY_CONFIG: &str = include_str!("../../../configs/tiny.toml");
+
+/// What a quickstart runs: the config, the step counts and the evaluation's size.
+#[derive(Clone, Debug)]
+pub struct QuickstartPlan {
+    /// Name of the config (`small` or `tiny`), used in run folder names.
+    pub name: String,
+    /// The config both runs start from.
+    pub config: TrainingConfig,
+    /// Teacher training steps.
+    pub teacher_steps: usize,
+    /// Student distillation steps.
+    pub student_steps: usize,
+    /// Target views per test subject in the evaluations (evenly spread over 1..=100).
+    pub eval_views: usize,
+}
+
+impl QuickstartPlan {
+    /// The default plan: the small config, 300 teacher and 150 student steps (the config's
+    /// 600 teacher steps take 16 minutes on the 2-core CPU), 25 views per test subject.
+    ///
+    /// # Errors
+    /// Never for the shipped config; a parse error otherwise.
+    pub fn standard() -> Result<Self> {
+        Ok(Self {
+            name: "small".into(),
+            config: TrainingConfig::parse(SMALL_CONFIG, Path::new("configs/small.toml"))?,
+            teacher_steps: 300,
+            student_steps: 150,
+            eval_views: 25,
+        })
+    }
+
+    /// `--fast`: the tiny config, 120 teacher and 60 student steps, 10 views per test subject.
+    ///
+    /// # Errors
+    /// Never for the shipped config; a parse error otherwise.
+    pub fn fast() -> Result<Self> {
+        Ok(Self {
+            name: "tiny".into(),
+            config: TrainingConfig::parse(TINY_CONFIG, Path::new("configs/tiny.toml"))?,
+            teacher_steps: 120,
+            student_steps: 60,
+            eval_views: 10,
+        })
+    }
+}
+
+/// The `[distill]` schedule squeezed into `steps` student steps: the first switch to linear
+/// attention after `steps / (group_size + 1)` steps, then one more block per group at the same
+/// interval, so every block is linear for the last `steps / (group_size + 1)` steps.
+pub fn compress_schedule(config: &mut TrainingConfig, steps: usize) {
+    let interval = (steps / (config.distill.group_size + 1)).max(1);
+    config.distill.start = interval;
+    config.distill.interval = interval;
+}
+
+/// The student job: distils a student from the teacher run `teacher` with `config`, into
+/// `options.out` (`options.steps` set). `prism distill-student`'s library call.
+pub type StudentJob<'a> = &'a dyn Fn(&TrainingConfig, &Path, &RunOptions) -> Result<RunSummary>;
+
+/// How a quickstart runs.
+#[derive(Clone, Debug)]
+pub struct QuickstartOptions {
+    /// Folder of the runs and evaluations (`teacher/`, `student/`, each with `evaluation/`).
+    pub out: PathBuf,
+    /// Backend of training and evaluation.
+    pub backend: BackendKind,
+    /// LPIPS weight file (default: the project's search order).
+    pub lpips_weights: Option<PathBuf>,
+    /// Progress bars on stderr.
+    pub progress: bool,
+}
+
+/// One trained and evaluated model of the quickstart.
+#[derive(Clone, Debug)]
+pub struct QuickstartModel {
+    /// The run folder.
+    pub run: PathBuf,
+    /// Training steps.
+    pub steps: usize,
+    /// Wall-clock seconds of the training run.
+    pub train_seconds: f64,
+    /// The evaluation.
+    pub evaluation: Evaluation,
+    /// The evaluation's files (JSON, report, grids).
+    pub files: EvaluationFiles,
+}
+
+/// What a quickstart did.
+#[derive(Clone, Debug)]
+pub struct QuickstartReport {
+    /// The dataset trained and evaluated on.
+    pub data_dir: PathBuf,
+    /// Seconds to synthesise (or find) the dataset.
+    pub data_seconds: f64,
+    /// The teacher.
+    pub teacher: QuickstartModel,
+    /// The student.
+    pub student: QuickstartModel,
+    /// Wall-clock seconds of the whole quickstart.
+    pub wall_seconds: f64,
+}
+
+/// Runs the quickstart: dataset, teacher, student (through `student_job`), both evaluations.
+/// Runs already complete in `options.out` are trained again from scratch.
+///
+/// # Errors
+/// Any error of the dataset, training or evaluation.
+pub fn quickstart(
+    plan: &QuickstartPlan,
+    options: &QuickstartOptions,
+    student_job: StudentJob<'_>,
+) -> Result<QuickstartReport> {
+    let start = Instant::now();
+    let data_dir = ensure_synthetic_dataset(&plan.config.data, options.progress)?;
+    let data_seconds = start.elapsed().as_secs_f64();
+    let eval = EvaluateOptions {
+        views: plan.eval_views,
+        progress: options.progress,
+        ..EvaluateOptions::default()
+    };
+    let run_options = |dir: &Path, steps: usize| {
+        // A fresh run each time: a previous quickstart's folder is replaced.
+        let _ = std::fs::remove_dir_all(dir);
+        RunOptions {
+            data: Some(data_dir.clone()),
+            steps: Some(steps),
+            progress: options.progress,
+            lpips_weights: options.lpips_weights.clone(),
+            ..RunOptions::new(dir, options.backend)
+        }
+    };
+    let evaluate_run = |run: &Path, steps: usize, seconds: f64| -> Result<QuickstartModel> {
+        let (evaluation, files) = evaluate_checkpoint(
+            run,
+            Some(&data_dir),
+            &run.join("evaluation"),
+            options.backend,
+            options.lpips_weights.as_deref(),
+            &eval,
+        )?;
+        Ok(QuickstartModel {
+            run: run.to_path_buf(),
+            steps,
+            train_seconds: seconds,
+            evaluation,
+            files,
+        })
+    };
+
+    let teacher_dir = options.out.join("teacher");
+    let t0 = Instant::now();
+    let summary = train(
+        &plan.config,
+        &TeacherTask {
+            lpips_weights: options.lpips_weights.clone(),
+        },
+        &run_options(&teacher_dir, plan.teacher_steps),
+    )?;
+    let teacher = evaluate_run(&teacher_dir, summary.steps, t0.elapsed().as_secs_f64())?;
+
+    let student_dir = options.out.join("student");
+    let mut student_config = plan.config.clone();
+    compress_schedule(&mut student_config, plan.student_steps);
+    let t0 = Instant::now();
+    let summary = student_job(
+        &student_config,
+        &teacher_dir,
+        &run_options(&student_dir, plan.student_steps),
+    )?;
+    let student = evaluate_run(&student_dir, summary.steps, t0.elapsed().as_secs_f64())?;
+    Ok(QuickstartReport {
+        data_dir,
+        data_seconds,
+        teacher,
+        student,
+        wall_seconds: start.elapsed().as_secs_f64(),
+    })
+}
+
+/// The quickstart's result table (Markdown) and where the reports and sample images are.
+pub fn quickstart_table(report: &QuickstartReport) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "| model | steps | train (s) | PSNR (dB) | SSIM | LPIPS | FPS |"
+    );
+    let _ = writeln!(out, "|---|---:|---:|---:|---:|---:|---:|");
+    for (name, m) in [("teacher", &report.teacher), ("student", &report.student)] {
+        let e = &m.evaluation;
+        let _ = writeln!(
+            out,
+            "| {name} | {} | {:.0} | {:.3} | {:.4} | {:.4} | {:.2} |",
+            m.steps, m.train_seconds, e.psnr, e.ssim, e.lpips, e.fps
+        );
+    }
+    let _ = writeln!(out);
+    for (name, m) in [("teacher", &report.teacher), ("student", &report.student)] {
+        let _ = writeln!(out, "{name} report: {}", m.files.report.display());
+        if let Some(grid) = m.files.grids.first() {
+            let _ = writeln!(out, "{name} sample images: {}", grid.display());
+        }
+    }
+    let _ = writeln!(
+        out,
+        "dataset {} ({:.0} s), total wall time {:.1} min",
+        report.data_dir.display(),
+        report.data_seconds,
+        report.wall_seconds / 60.0
+    );
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shipped_plans_parse_and_compress_the_schedule() {
+        let mut plan = QuickstartPlan::fast().unwrap();
+        assert_eq!(plan.config.model.resolution, 64);
+        compress_schedule(&mut plan.config, 30);
+        // group_size 3: switches at 7, 14, 21; the last 9 steps fully linear.
+        assert_eq!(
+            (plan.config.distill.start, plan.config.distill.interval),
+            (7, 7)
+        );
+        let standard = QuickstartPlan::standard().unwrap();
+        assert_eq!(standard.config.model.resolution, 128);
+    }
+}

@@ -1,0 +1,132 @@
+//! `prism evaluate`: a checkpoint on the test subjects of a dataset (the paper's protocol), or
+//! any method's images against ground truth.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use clap::Args;
+use prism_data::BackendKind;
+use prism_losses::{Lpips, score_paths};
+use prism_train::{EvaluateOptions, evaluate_checkpoint};
+
+/// Evaluate novel view synthesis: PSNR (dB), SSIM and LPIPS.
+///
+/// With --checkpoint: for each test subject of the dataset, source view 0 and targets 1..=100;
+/// the scores are averaged per subject, then over the subjects, and broken down by view angle
+/// (10-degree bins of |yaw| and |pitch|); the forward pass of one (source, target) pair is
+/// timed (FPS, warm-up and data loading excluded). Writes OUT/evaluation.json, OUT/report.md
+/// and a PNG grid per subject (source | prediction | ground truth | error map).
+///
+/// With --pred and --gt: scores the images of any method (two files, or two folders matched by
+/// file name) with the same metrics; JSON `{"mean": {..}, "images": {NAME: {..}}}`.
+#[derive(Args, Debug)]
+pub struct EvaluateArgs {
+    /// A checkpoint folder, or a run folder (its latest checkpoint).
+    #[arg(long, value_name = "RUN_OR_CKPT", conflicts_with_all = ["pred", "gt"])]
+    checkpoint: Option<PathBuf>,
+    /// Dataset folder (see FORMAT.md) [default: the checkpoint config's synthetic dataset].
+    #[arg(long, value_name = "DIR", requires = "checkpoint")]
+    data: Option<PathBuf>,
+    /// Predicted image, or folder of predicted images (needs --gt).
+    #[arg(long, value_name = "PATH", requires = "gt")]
+    pred: Option<PathBuf>,
+    /// Ground-truth image, or folder of ground-truth images with the same file names.
+    #[arg(long, value_name = "PATH", requires = "pred")]
+    gt: Option<PathBuf>,
+    /// Also write the JSON scores to this file.
+    #[arg(long, value_name = "FILE")]
+    json: Option<PathBuf>,
+    /// Folder for evaluation.json, report.md and grids/ [default: CHECKPOINT/evaluation].
+    #[arg(long, value_name = "DIR", requires = "checkpoint")]
+    out: Option<PathBuf>,
+    /// Target views per subject, evenly spread over 1..=100 (100 is the paper's protocol).
+    #[arg(long, default_value_t = 100, value_name = "N", value_parser = clap::value_parser!(u16).range(1..=100))]
+    views: u16,
+    /// (source, target) pairs per forward pass.
+    #[arg(long, default_value_t = 8, value_name = "N", value_parser = clap::value_parser!(u16).range(1..))]
+    batch: u16,
+    /// Backend: ndarray, flex or wgpu.
+    #[arg(long, default_value = "flex")]
+    backend: BackendKind,
+    /// LPIPS weight file [default: $PRISM_LPIPS_WEIGHTS, then data/lpips_alex.safetensors].
+    #[arg(long, value_name = "FILE")]
+    lpips_weights: Option<PathBuf>,
+    /// No progress bar.
+    #[arg(long)]
+    quiet: bool,
+}
+
+impl EvaluateArgs {
+    /// Runs the evaluation and prints the scores and where the files are.
+    pub fn run(self) -> anyhow::Result<()> {
+        match (&self.checkpoint, &self.pred, &self.gt) {
+            (Some(checkpoint), None, None) => self.run_checkpoint(checkpoint),
+            (None, Some(pred), Some(gt)) => self.run_images(pred, gt),
+            _ => bail!("give --checkpoint (with --data), or --pred and --gt"),
+        }
+    }
+
+    fn run_checkpoint(&self, checkpoint: &Path) -> anyhow::Result<()> {
+        let out = self
+            .out
+            .clone()
+            .unwrap_or_else(|| checkpoint.join("evaluation"));
+        let options = EvaluateOptions {
+            views: usize::from(self.views),
+            batch: usize::from(self.batch),
+            progress: !self.quiet,
+            ..EvaluateOptions::default()
+        };
+        let (e, files) = evaluate_checkpoint(
+            checkpoint,
+            self.data.as_deref(),
+            &out,
+            self.backend,
+            self.lpips_weights.as_deref(),
+            &options,
+        )
+        .with_context(|| format!("evaluating {}", checkpoint.display()))?;
+        if let Some(json) = &self.json {
+            write_atomic(json, &prism_train::evaluate::evaluation_json(&e))?;
+        }
+        println!(
+            "{} subjects x {} views: PSNR {:.3} dB  SSIM {:.4}  LPIPS {:.4}  FPS {:.2} ({})",
+            e.subjects.len(),
+            e.views_per_subject,
+            e.psnr,
+            e.ssim,
+            e.lpips,
+            e.fps,
+            self.backend
+        );
+        println!("report: {}", files.report.display());
+        println!("scores: {}", files.json.display());
+        if let Some(grid) = files.grids.first() {
+            println!(
+                "sample grids (source | prediction | ground truth | error): {}",
+                grid.parent().unwrap_or(&out).display()
+            );
+        }
+        Ok(())
+    }
+
+    fn run_images(&self, pred: &Path, gt: &Path) -> anyhow::Result<()> {
+        let device = self.backend.device()?;
+        let lpips = Lpips::load_default(self.lpips_weights.as_deref(), &device)?;
+        let scores = score_paths(pred, gt, &lpips, &device)?;
+        if let Some(json) = &self.json {
+            write_atomic(json, &(scores.to_json() + "\n"))?;
+        }
+        print!("{}", scores.to_table());
+        Ok(())
+    }
+}
+
+/// Writes `text` to `path` through a temporary file and a rename.
+fn write_atomic(path: &Path, text: &str) -> anyhow::Result<()> {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".partial");
+    let tmp = PathBuf::from(tmp);
+    std::fs::write(&tmp, text).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))
+}

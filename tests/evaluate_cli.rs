@@ -1,0 +1,361 @@
+//! End-to-end tests of `prism evaluate` and `prism infer` through the built binary (ndarray
+//! backend), with a tiny teacher trained for a few steps on a tiny synthetic dataset in a
+//! private cache folder.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::OnceLock;
+
+use prism_train::{RunOptions, TeacherTask, TrainingConfig, configs_dir, train};
+
+/// A scratch folder for one test, removed first.
+fn scratch(test: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("prism-eval-cli-{}-{test}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// configs/tiny.toml at 32 px (LPIPS's minimum is 31) on 4 synthetic subjects, 1 held out.
+fn tiny_config() -> TrainingConfig {
+    let mut c = TrainingConfig::load(configs_dir().join("tiny.toml")).unwrap();
+    c.model.resolution = 32;
+    c.losses.lpips = 0.0;
+    c.train.steps = 4;
+    c.train.checkpoint_every = 4;
+    c.train.validate_every = 0;
+    c.train.validation_views = 2;
+    c.data.subjects = 4;
+    c.data.resolution = 32;
+    c.data.test_fraction = 0.25;
+    c
+}
+
+/// The cache folder (the tiny dataset) and the run folder of a tiny teacher trained 4 steps,
+/// made once per test process.
+fn trained() -> &'static (PathBuf, PathBuf) {
+    static RUN: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
+    RUN.get_or_init(|| {
+        let cache = scratch("cache");
+        // SAFETY: set once, before any child process is spawned or the variable is read.
+        unsafe { std::env::set_var(prism_train::CACHE_ENV, &cache) };
+        let run = scratch("run");
+        let options = RunOptions::new(&run, prism_data::BackendKind::Ndarray);
+        train(
+            &tiny_config(),
+            &TeacherTask {
+                lpips_weights: None,
+            },
+            &options,
+        )
+        .unwrap();
+        (cache, run)
+    })
+}
+
+fn prism(args: &[&str]) -> Command {
+    let (cache, _) = trained();
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_prism"));
+    cmd.args(args)
+        .args(["--backend", "ndarray", "--quiet"])
+        .env(prism_train::CACHE_ENV, cache)
+        .env_remove("PRISM_LPIPS_WEIGHTS");
+    cmd
+}
+
+fn run(mut cmd: Command) -> Output {
+    let out = cmd.output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+/// Runs a failing command and returns its stderr, checking the exit status and one-line error.
+fn failure(mut cmd: Command) -> String {
+    let out = cmd.output().unwrap();
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(err.starts_with("error: "), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    err
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn read_json(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+fn assert_scores_in_range(v: &serde_json::Value) {
+    let psnr = v["psnr"].as_f64().unwrap();
+    let ssim = v["ssim"].as_f64().unwrap();
+    let lpips = v["lpips"].as_f64().unwrap();
+    assert!(psnr > 3.0 && psnr < 60.0, "{v}");
+    assert!(ssim > -1.0 && ssim <= 1.0, "{v}");
+    assert!(lpips > 0.0 && lpips < 1.5, "{v}");
+}
+
+#[test]
+fn evaluate_writes_every_key_the_report_and_the_grids() {
+    let (_, run_dir) = trained();
+    let dir = scratch("evaluate");
+    let json = dir.join("scores.json");
+    let out = dir.join("eval");
+    run(prism(&[
+        "evaluate",
+        "--checkpoint",
+        s(run_dir),
+        "--json",
+        s(&json),
+        "--out",
+        s(&out),
+    ]));
+    let v = read_json(&json);
+    assert_eq!(v, read_json(&out.join("evaluation.json")));
+    assert_scores_in_range(&v);
+    assert!(v["fps"].as_f64().unwrap() > 0.0);
+    assert_eq!(v["views_per_subject"], 100);
+    // One held-out subject of 4, with its 100 views.
+    let subjects = v["subjects"].as_object().unwrap();
+    assert_eq!(subjects.len(), 1);
+    let (name, subject) = subjects.iter().next().unwrap();
+    assert_eq!(subject["views"], 100);
+    assert_scores_in_range(subject);
+    // With one subject, the means are that subject's.
+    assert_eq!(subject["psnr"], v["psnr"]);
+    // Angle bins: 0-10, 10-20, 20-30 of |yaw| and |pitch|, together the 100 views.
+    for axis in ["yaw", "pitch"] {
+        let bins = v["per_angle"][axis].as_array().unwrap();
+        let from: Vec<f64> = bins
+            .iter()
+            .map(|b| b["from_deg"].as_f64().unwrap())
+            .collect();
+        assert_eq!(from, vec![0.0, 10.0, 20.0], "{axis}");
+        let views: u64 = bins.iter().map(|b| b["views"].as_u64().unwrap()).sum();
+        assert_eq!(views, 100);
+        bins.iter().for_each(assert_scores_in_range);
+    }
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(report.contains("| PSNR (dB) | SSIM | LPIPS | FPS (1 pair) |"));
+    assert!(report.contains(&format!("grids/{name}.png")));
+    // 4 rows of source | prediction | ground truth | error map, 32 px each.
+    let grid = image::open(out.join("grids").join(format!("{name}.png"))).unwrap();
+    assert_eq!((grid.width(), grid.height()), (4 * 32, 4 * 32));
+}
+
+#[test]
+fn evaluate_pred_gt_reproduces_the_reference_metrics() {
+    let reference =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("crates/prism-losses/tests/reference");
+    let dir = scratch("pred-gt");
+    let (pred, gt) = (dir.join("pred"), dir.join("gt"));
+    std::fs::create_dir_all(&pred).unwrap();
+    std::fs::create_dir_all(&gt).unwrap();
+    for name in ["astronaut_noise", "coffee_tint"] {
+        let file = format!("{name}.png");
+        std::fs::copy(reference.join(format!("{name}_pred.png")), pred.join(&file)).unwrap();
+        std::fs::copy(reference.join(format!("{name}_target.png")), gt.join(&file)).unwrap();
+    }
+    let json = dir.join("scores.json");
+    run(prism(&[
+        "evaluate",
+        "--pred",
+        s(&pred),
+        "--gt",
+        s(&gt),
+        "--json",
+        s(&json),
+    ]));
+    let v = read_json(&json);
+    let expected = read_json(&reference.join("reference.json"));
+    let mut means = [0.0; 3];
+    for name in ["astronaut_noise", "coffee_tint"] {
+        let got = &v["images"][format!("{name}.png")];
+        let want = &expected[name];
+        for (k, (key, want_key, tol)) in [
+            ("psnr", "psnr", 1e-6),
+            ("ssim", "ssim", 1e-4),
+            ("lpips", "lpips_alex", 1e-3),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let (g, w) = (got[key].as_f64().unwrap(), want[want_key].as_f64().unwrap());
+            assert!((g - w).abs() < tol, "{name} {key}: {g} vs {w}");
+            means[k] += w / 2.0;
+        }
+    }
+    assert!((v["mean"]["psnr"].as_f64().unwrap() - means[0]).abs() < 1e-6);
+    assert!((v["mean"]["lpips"].as_f64().unwrap() - means[2]).abs() < 1e-3);
+}
+
+#[test]
+fn infer_writes_the_sweep_a_gif_and_the_gaussians() {
+    let (cache, run_dir) = trained();
+    let subject = std::fs::read_dir(cache.join("datasets"))
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path()
+        .join("subject_0003");
+    let dir = scratch("infer");
+    let out = dir.join("views");
+    let ply = dir.join("person.ply");
+    run(prism(&[
+        "infer",
+        "--checkpoint",
+        s(run_dir),
+        "--image",
+        s(&subject.join("rgb/000.png")),
+        "--mask",
+        s(&subject.join("mask/000.png")),
+        "--out",
+        s(&out),
+        "--sweep",
+        "yaw",
+        "--step",
+        "15",
+        "--export-ply",
+        s(&ply),
+    ]));
+    let mut names: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    names.sort();
+    let expected = [
+        "input.png",
+        "sweep.gif",
+        "view_000_yaw-30_pitch+00.png",
+        "view_001_yaw-15_pitch+00.png",
+        "view_002_yaw+00_pitch+00.png",
+        "view_003_yaw+15_pitch+00.png",
+        "view_004_yaw+30_pitch+00.png",
+    ];
+    assert_eq!(names, expected);
+    let view = image::open(out.join(expected[2])).unwrap();
+    assert_eq!((view.width(), view.height()), (32, 32));
+    use image::AnimationDecoder;
+    let gif = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(
+        std::fs::File::open(out.join("sweep.gif")).unwrap(),
+    ))
+    .unwrap();
+    let frames = gif.into_frames().collect_frames().unwrap();
+    assert_eq!(frames.len(), 5);
+    // The GIF's frames are the PNGs (up to the GIF palette).
+    let png = image::open(out.join(expected[6])).unwrap().to_rgb8();
+    let last = frames[4].buffer();
+    let diff: f64 = png
+        .pixels()
+        .zip(last.pixels())
+        .map(|(a, b)| {
+            (0..3)
+                .map(|c| (a[c] as f64 - b[c] as f64).abs())
+                .sum::<f64>()
+        })
+        .sum::<f64>()
+        / (32.0 * 32.0 * 3.0);
+    assert!(diff < 12.0, "mean difference {diff}");
+    // A standard 3DGS PLY: one Gaussian per source pixel.
+    let bytes = std::fs::read(&ply).unwrap();
+    let header = String::from_utf8_lossy(&bytes[..bytes.len().min(600)]).to_string();
+    assert!(header.starts_with("ply\n"), "{header}");
+    assert!(header.contains("element vertex 1024"), "{header}");
+
+    // A folder of frames: one subfolder per frame.
+    let frames_dir = dir.join("video");
+    std::fs::create_dir_all(&frames_dir).unwrap();
+    for k in 0..2 {
+        std::fs::copy(
+            subject.join(format!("rgb/00{k}.png")),
+            frames_dir.join(format!("frame{k}.png")),
+        )
+        .unwrap();
+    }
+    let video_out = dir.join("video-views");
+    let output = run(prism(&[
+        "infer",
+        "--checkpoint",
+        s(run_dir),
+        "--image",
+        s(&frames_dir),
+        "--out",
+        s(&video_out),
+        "--sweep",
+        "pitch",
+        "--step",
+        "30",
+    ]));
+    // No mask and no alpha: a warning per frame.
+    assert!(String::from_utf8_lossy(&output.stderr).contains("warning"));
+    for k in 0..2 {
+        let frame = video_out.join(format!("frame{k}"));
+        assert!(frame.join("sweep.gif").is_file());
+        assert!(frame.join("view_002_yaw+00_pitch+30.png").is_file());
+    }
+}
+
+#[test]
+fn bad_input_is_one_clear_line() {
+    let (cache, run_dir) = trained();
+    let dir = scratch("bad");
+    let not_an_image = dir.join("photo.png");
+    std::fs::write(&not_an_image, b"not a png").unwrap();
+    let err = failure(prism(&[
+        "infer",
+        "--checkpoint",
+        s(run_dir),
+        "--image",
+        s(&not_an_image),
+        "--out",
+        s(&dir.join("o")),
+    ]));
+    assert!(
+        err.contains("photo.png") && err.contains("not a readable image"),
+        "{err}"
+    );
+
+    let subject = std::fs::read_dir(cache.join("datasets"))
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path()
+        .join("subject_0003");
+    let small_mask = dir.join("mask.png");
+    image::GrayImage::new(8, 8).save(&small_mask).unwrap();
+    let err = failure(prism(&[
+        "infer",
+        "--checkpoint",
+        s(run_dir),
+        "--image",
+        s(&subject.join("rgb/000.png")),
+        "--mask",
+        s(&small_mask),
+        "--out",
+        s(&dir.join("o")),
+    ]));
+    assert!(err.contains("the mask is 8x8"), "{err}");
+
+    let err = failure(prism(&[
+        "evaluate",
+        "--checkpoint",
+        s(&dir.join("no-such-run")),
+    ]));
+    assert!(err.contains("no-such-run"), "{err}");
+
+    // Images of different sizes.
+    let (pred, gt) = (dir.join("a.png"), dir.join("b.png"));
+    image::RgbImage::new(40, 40).save(&pred).unwrap();
+    image::RgbImage::new(48, 40).save(&gt).unwrap();
+    let err = failure(prism(&["evaluate", "--pred", s(&pred), "--gt", s(&gt)]));
+    assert!(err.contains("a.png"), "{err}");
+}
