@@ -39,13 +39,11 @@ enum Command {
     TrainTeacher(commands::train::TrainTeacherArgs),
     /// Distil the linear-attention student from a teacher (progressive schedule, ablations).
     DistillStudent(commands::distill::DistillStudentArgs),
-    /// Evaluate a checkpoint on the test subjects (PSNR, SSIM, LPIPS, FPS, by angle), or score
-    /// any method's images against ground truth.
+    /// Evaluate a checkpoint on the test subjects (PSNR, SSIM, LPIPS, FPS, report), or score
+    /// any method's images with --pred/--gt.
     Evaluate(commands::evaluate::EvaluateArgs),
-    /// Novel views (PNG frames and a GIF) of a person from one photo or a folder of frames.
+    /// Novel views of a person from one photo (a +-30 degree sweep as PNGs and a GIF).
     Infer(commands::infer::InferArgs),
-    /// The whole pipeline on a fresh machine: data, teacher, student, evaluation, a table.
-    Quickstart(commands::quickstart::QuickstartArgs),
 }
 
 fn main() {
@@ -61,7 +59,6 @@ fn main() {
         Command::DistillStudent(args) => args.run(),
         Command::Evaluate(args) => args.run(),
         Command::Infer(args) => args.run(),
-        Command::Quickstart(args) => args.run(),
     };
     if let Err(err) = result {
         eprintln!("error: {err:#}");

@@ -11,7 +11,6 @@ use prism_data::BackendKind;
 use prism_data::dataset::DatasetReader;
 use prism_model::{
     AttentionKind, BenchOptions, BenchRow, MemoryProbe, Precision, bench_forward, load_config,
-    student_kinds,
 };
 use prism_train::{
     RunOptions, TeacherTask, TrainingConfig, Validator, ensure_synthetic_dataset, load_model,
@@ -288,7 +287,7 @@ impl TableArgs {
             let kinds = match name.as_str() {
                 "teacher" => vec![AttentionKind::Full; n],
                 "linear" => vec![AttentionKind::Linear; n],
-                _ => student_kinds(&file.distill, n),
+                _ => file.distill.final_kinds(n),
             };
             model.set_attention_kinds(&kinds);
             for &res in &resolutions {

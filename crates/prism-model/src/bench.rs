@@ -11,19 +11,9 @@ use prism_data::rays::plucker_rays;
 use prism_data::{Camera, Intrinsics};
 use serde::Serialize;
 
-use crate::attention::AttentionKind;
-use crate::distill::{DistillConfig, progressive_schedule};
 use crate::memory::MemoryProbe;
 use crate::prism::Prism;
 use crate::views::Views;
-
-/// The attention kinds the distilled student ends with: the progressive schedule after its
-/// last switch (`group_size - 1` Linear blocks in every full group, the last block of each
-/// group Full; paper scale: 30 of 36 blocks Linear).
-pub fn student_kinds(distill: &DistillConfig, num_blocks: usize) -> Vec<AttentionKind> {
-    let last_switch = distill.start + distill.interval * distill.group_size.max(1);
-    progressive_schedule(last_switch, distill, num_blocks)
-}
 
 /// Views of `b` pairs as the viewing protocol makes them, at `res x res`: the frontal source
 /// camera and targets 20 degrees to the side and 10 degrees up (and further pairs spread
@@ -129,34 +119,5 @@ fn median(sorted: &[f64]) -> f64 {
         sorted[n / 2]
     } else {
         0.5 * (sorted[n / 2 - 1] + sorted[n / 2])
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn student_kinds_are_the_schedule_after_its_last_switch() {
-        let count = |kinds: &[AttentionKind]| {
-            kinds
-                .iter()
-                .filter(|&&k| k == AttentionKind::Linear)
-                .count()
-        };
-        let paper = DistillConfig::new();
-        let kinds = student_kinds(&paper, 36);
-        assert_eq!(count(&kinds), 30);
-        assert_eq!(kinds, progressive_schedule(10_000_000, &paper, 36));
-        // All switches at once, and a short last group that keeps its last block Full.
-        let at_once = DistillConfig::new()
-            .with_group_size(3)
-            .with_start(0)
-            .with_interval(0);
-        let letters: String = student_kinds(&at_once, 8)
-            .iter()
-            .map(|k| k.letter())
-            .collect();
-        assert_eq!(letters, "LLFLLFLF");
     }
 }

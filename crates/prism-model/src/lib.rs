@@ -43,7 +43,7 @@ pub use attention::{
     AttentionKind, FeatureMap, SelfAttention, SelfAttentionConfig, fused_attention,
     linear_attention, softmax_attention,
 };
-pub use bench::{BenchOptions, BenchRow, bench_forward, protocol_views, student_kinds};
+pub use bench::{BenchOptions, BenchRow, bench_forward, protocol_views};
 pub use block::{Mlp, PrismBlock, PrismBlockConfig};
 pub use config::{AttentionPattern, ModelConfigFile, PrismConfig, load_config, parse_config};
 pub use distill::{DistillConfig, DistillLayers, DistillMode, progressive_schedule};

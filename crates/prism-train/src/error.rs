@@ -96,20 +96,6 @@ pub enum TrainError {
         /// What was not finite at the last one.
         reason: String,
     },
-    /// A 3DGS export was asked of a model without a 3DGS head.
-    #[error(
-        "this model has no 3DGS head (its config has `model.gs_head = false`): there are no \
-         Gaussians to export"
-    )]
-    NoGaussianHead,
-    /// An input image, mask or folder cannot be used (evaluation and inference).
-    #[error("{path}: {message}")]
-    Input {
-        /// The file or folder.
-        path: PathBuf,
-        /// What is wrong with it.
-        message: String,
-    },
     /// A training worker failed on one of the devices.
     #[error("training step failed: {0}")]
     Worker(String),
@@ -121,14 +107,6 @@ impl TrainError {
         Self::Io {
             path: path.into(),
             cause,
-        }
-    }
-
-    /// A [`TrainError::Input`] for `path`.
-    pub fn input(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
-        Self::Input {
-            path: path.into(),
-            message: message.into(),
         }
     }
 

@@ -1,90 +1,68 @@
-//! Inference from one photo (`prism infer`): the person is cut out (mask or alpha channel),
-//! centred and scaled as in the training data, given the viewing protocol's frontal camera,
-//! and rendered along a sweep of novel views (PNG frames and an animated GIF); optionally the
-//! 3DGS head's Gaussians are saved as a PLY file.
+//! `prism infer`: novel views of a person from one photo (or each frame of a video).
+//!
+//! A photo has no camera: it gets the viewing protocol's frontal camera (view 0). The person
+//! is found from a mask or the photo's alpha channel and framed like the training data: in the
+//! frontal view the protocol's subject (1.80 m, at 2 m, focal length = image height) spans
+//! [`PERSON_HEIGHT_FRACTION`] of the image height, centred. The model then synthesises the
+//! views of a sweep (yaw, pitch or both within +-30 degrees).
 
-use std::fmt;
 use std::path::{Path, PathBuf};
-use std::str::FromStr;
 
 use burn::tensor::Device;
-use image::imageops::{FilterType, resize};
-use image::{DynamicImage, ImageBuffer, Luma, Rgb, Rgb32FImage, RgbImage, Rgba};
-use prism_data::camera::{Camera, Intrinsics};
-use prism_data::protocol::{ViewAngles, ViewingProtocol};
-
-use crate::error::{Result, TrainError};
-use crate::evaluate::{EVAL_BATCH, progress_bar};
-use crate::images::{HostImages, rgb32_to_rgb8, save_gif, save_png};
-use crate::predict::{Pairs, export_gaussians, nvs_model, synthesise};
+use image::{DynamicImage, GrayImage, Rgb, Rgb32FImage, RgbImage, Rgba32FImage};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use prism_data::{BackendKind, Camera, Intrinsics, ViewAngles, ViewingProtocol};
 use prism_model::Prism;
 
-/// The file name of a sweep's animated GIF.
-pub const SWEEP_GIF: &str = "sweep.gif";
-/// The file name of the centred input image.
-pub const INPUT_PNG: &str = "input.png";
-/// Milliseconds per frame of the GIF.
-pub const GIF_DELAY_MS: u32 = 120;
-/// Image extensions read from a folder of video frames.
-pub const FRAME_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
+use crate::checkpoint::load_model;
+use crate::error::{Result, TrainError};
+use crate::images::{HostImages, save_gif, save_png, to_u8};
+use crate::predict::{Pairs, forward_pairs, inference_model, synthesise};
 
-/// Which novel views to render.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+/// Fraction of the image height the person spans in the frontal view of the protocol:
+/// 1.80 m seen from 2.0 m with a focal length of one image height.
+pub const PERSON_HEIGHT_FRACTION: f32 = 0.9;
+/// File name of the sweep's animated GIF.
+pub const SWEEP_GIF: &str = "sweep.gif";
+/// File name of the framed input photo written next to the views.
+pub const INPUT_PNG: &str = "input.png";
+
+/// Which novel views to synthesise.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Sweep {
-    /// Yaw from `-max` to `+max`, pitch 0.
-    #[default]
+    /// Yaw from -max to +max, pitch 0.
     Yaw,
-    /// Pitch from `-max` to `+max`, yaw 0.
+    /// Pitch from -max to +max, yaw 0.
     Pitch,
     /// Every (yaw, pitch) of the two sweeps, row by row (pitch outer).
     Grid,
 }
 
-impl fmt::Display for Sweep {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(match self {
-            Sweep::Yaw => "yaw",
-            Sweep::Pitch => "pitch",
-            Sweep::Grid => "grid",
-        })
-    }
-}
-
-impl FromStr for Sweep {
+impl std::str::FromStr for Sweep {
     type Err = String;
 
     fn from_str(s: &str) -> std::result::Result<Self, String> {
         match s {
-            "yaw" => Ok(Sweep::Yaw),
-            "pitch" => Ok(Sweep::Pitch),
-            "grid" => Ok(Sweep::Grid),
-            other => Err(format!(
-                "unknown sweep `{other}` (expected yaw, pitch or grid)"
-            )),
+            "yaw" => Ok(Self::Yaw),
+            "pitch" => Ok(Self::Pitch),
+            "grid" => Ok(Self::Grid),
+            _ => Err(format!("unknown sweep `{s}` (yaw, pitch or grid)")),
         }
     }
 }
 
-/// The angles of a sweep: `-max, -max + step, ..., max` (the last one kept even when `step`
-/// does not divide `2 max`), for yaw, pitch or both.
-///
-/// # Errors
-/// A step that is not finite or below 0.1 degree.
-pub fn sweep_views(sweep: Sweep, step_deg: f32, max_deg: f32) -> Result<Vec<ViewAngles>> {
-    if !(step_deg.is_finite() && step_deg >= 0.1) {
-        return Err(TrainError::input(
-            "--step",
-            format!("{step_deg} is not a step of at least 0.1 degree"),
-        ));
-    }
+/// The angles of a sweep: `-max, -max + step, ..., max` (the last one always `max`) along the
+/// swept axes, as protocol views numbered from 0.
+pub fn sweep_views(sweep: Sweep, step_deg: f32, max_deg: f32) -> Vec<ViewAngles> {
+    let step = step_deg.abs().max(1e-3);
     let mut angles = Vec::new();
     let mut a = -max_deg;
     while a < max_deg - 1e-3 {
         angles.push(a);
-        a += step_deg;
+        a += step;
     }
     angles.push(max_deg);
-    let views: Vec<(f32, f32)> = match sweep {
+    let pairs: Vec<(f32, f32)> = match sweep {
         Sweep::Yaw => angles.iter().map(|&y| (y, 0.0)).collect(),
         Sweep::Pitch => angles.iter().map(|&p| (0.0, p)).collect(),
         Sweep::Grid => angles
@@ -92,7 +70,7 @@ pub fn sweep_views(sweep: Sweep, step_deg: f32, max_deg: f32) -> Result<Vec<View
             .flat_map(|&p| angles.iter().map(move |&y| (y, p)))
             .collect(),
     };
-    Ok(views
+    pairs
         .into_iter()
         .enumerate()
         .map(|(index, (yaw_deg, pitch_deg))| ViewAngles {
@@ -100,379 +78,519 @@ pub fn sweep_views(sweep: Sweep, step_deg: f32, max_deg: f32) -> Result<Vec<View
             yaw_deg,
             pitch_deg,
         })
-        .collect())
+        .collect()
 }
 
-/// The viewing protocol's camera of `view` for square images of `resolution` px (the frontal
-/// camera for yaw = pitch = 0): what a photo without a camera is given.
-pub fn protocol_camera(view: &ViewAngles, resolution: u32) -> Camera {
-    ViewingProtocol::default().camera(view, Intrinsics::protocol_default(resolution, resolution))
-}
-
-/// Where the person's outline came from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Cutout {
-    /// The `--mask` file.
-    Mask,
-    /// The photo's alpha channel.
-    Alpha,
-    /// Neither: the whole image was used.
-    WholeImage,
-}
-
-/// A photo prepared for the model: square, `resolution` px, the person centred and scaled as
-/// in the training data, composited on the background.
-#[derive(Clone, Debug)]
-pub struct PreparedPhoto {
-    /// RGB in [0, 1].
-    pub image: Rgb32FImage,
-    /// Where the person's outline came from.
-    pub cutout: Cutout,
-}
-
-/// Fraction of the image height that the person's bounding box fills in the training data's
-/// frontal view. The protocol puts a 1.80 m subject 2.0 m from the camera with `fy = H`, which
-/// is 0.90 of the height for a flat figure; perspective (the body's front is closer) and the
-/// mask's anti-aliased edge make it larger: 0.948 is the mean over the frontal views of the
-/// small config's 24 synthetic people (0.90 to 0.99).
-pub const PERSON_HEIGHT_FRACTION: f32 = 0.948;
-/// Where the centre of the person's bounding box sits in the training data's frontal view, as
-/// a fraction of the image height from the top (mean over the same 24 views; the feet, being
-/// closer, reach further down than the head up).
-pub const PERSON_CENTRE_Y: f32 = 0.517;
-
-/// Reads `photo` (and `mask`, a grey image of the same size where the person is white) and
-/// prepares it for the model (see [`prepare_photo`]).
-///
-/// # Errors
-/// Unreadable images, a mask of another size, an empty mask.
-pub fn load_photo(
-    photo: &Path,
-    mask: Option<&Path>,
-    resolution: u32,
-    background: [f32; 3],
-) -> Result<PreparedPhoto> {
-    let decoded = open_image(photo)?;
-    let rgb = decoded.to_rgb32f();
-    let (alpha, cutout) = match mask {
-        Some(mask_path) => {
-            let m = open_image(mask_path)?.to_luma32f();
-            if m.dimensions() != rgb.dimensions() {
-                return Err(TrainError::input(
-                    mask_path,
-                    format!(
-                        "the mask is {}x{} but the photo {} is {}x{}",
-                        m.width(),
-                        m.height(),
-                        photo.display(),
-                        rgb.width(),
-                        rgb.height()
-                    ),
-                ));
-            }
-            (m, Cutout::Mask)
-        }
-        None if decoded.color().has_alpha() => {
-            let rgba = decoded.to_rgba32f();
-            let a = ImageBuffer::from_fn(rgba.width(), rgba.height(), |x, y| {
-                Luma([rgba.get_pixel(x, y).0[3]])
-            });
-            if a.pixels().all(|p| p.0[0] >= 1.0) {
-                (a, Cutout::WholeImage)
-            } else {
-                (a, Cutout::Alpha)
-            }
-        }
-        None => (
-            ImageBuffer::from_pixel(rgb.width(), rgb.height(), Luma([1.0])),
-            Cutout::WholeImage,
-        ),
-    };
-    let image = prepare_photo(&rgb, &alpha, cutout, resolution, background)
-        .map_err(|message| TrainError::input(mask.unwrap_or(photo), message))?;
-    Ok(PreparedPhoto { image, cutout })
-}
-
-/// Centres and scales the person like the training data: the bounding box of `alpha > 0.5`
-/// is scaled to [`PERSON_HEIGHT_FRACTION`] of the image height and its centre moved to the
-/// horizontal centre, [`PERSON_CENTRE_Y`] down; the photo is resampled with
-/// premultiplied alpha and composited on `background`. With [`Cutout::WholeImage`] the whole
-/// image is fitted into the square instead.
-///
-/// # Errors
-/// A message when the mask is empty.
-pub fn prepare_photo(
-    rgb: &Rgb32FImage,
-    alpha: &ImageBuffer<Luma<f32>, Vec<f32>>,
-    cutout: Cutout,
-    resolution: u32,
-    background: [f32; 3],
-) -> std::result::Result<Rgb32FImage, String> {
-    let (w, h) = rgb.dimensions();
-    let r = resolution as f32;
-    // (photo x, photo y) that lands on (0.5 R, centre_y R); photo pixels per output pixel
-    let (cx, cy, per_pixel, centre_y) = if cutout == Cutout::WholeImage {
-        (w as f32 / 2.0, h as f32 / 2.0, w.max(h) as f32 / r, 0.5)
-    } else {
-        let (mut x0, mut y0, mut x1, mut y1) = (u32::MAX, u32::MAX, 0, 0);
-        for (x, y, p) in alpha.enumerate_pixels() {
-            if p.0[0] > 0.5 {
-                x0 = x0.min(x);
-                y0 = y0.min(y);
-                x1 = x1.max(x + 1);
-                y1 = y1.max(y + 1);
-            }
-        }
-        if x0 == u32::MAX {
-            return Err("the mask is empty: no pixel of the person (alpha > 0.5) was found".into());
-        }
-        let box_h = (y1 - y0) as f32;
-        (
-            (x0 + x1) as f32 / 2.0,
-            (y0 + y1) as f32 / 2.0,
-            box_h / (PERSON_HEIGHT_FRACTION * r),
-            PERSON_CENTRE_Y,
-        )
-    };
-    // The square window of the photo that becomes the output, premultiplied RGBA.
-    let side = (per_pixel * r).ceil().max(1.0) as u32;
-    let left = cx - side as f32 / 2.0;
-    let top = cy - side as f32 * centre_y;
-    let window = ImageBuffer::<Rgba<f32>, Vec<f32>>::from_fn(side, side, |x, y| {
-        let sx = (left + x as f32 + 0.5).floor();
-        let sy = (top + y as f32 + 0.5).floor();
-        if sx < 0.0 || sy < 0.0 || sx >= w as f32 || sy >= h as f32 {
-            return Rgba([0.0; 4]);
-        }
-        let (sx, sy) = (sx as u32, sy as u32);
-        let a = alpha.get_pixel(sx, sy).0[0].clamp(0.0, 1.0);
-        let c = rgb.get_pixel(sx, sy).0;
-        Rgba([c[0] * a, c[1] * a, c[2] * a, a])
-    });
-    let small = resize(&window, resolution, resolution, FilterType::Triangle);
-    Ok(Rgb32FImage::from_fn(resolution, resolution, |x, y| {
-        let p = small.get_pixel(x, y).0;
-        let a = p[3].clamp(0.0, 1.0);
-        Rgb([0, 1, 2].map(|c| (p[c] + background[c] * (1.0 - a)).clamp(0.0, 1.0)))
-    }))
-}
-
-/// What [`render_sweep`] wrote.
-#[derive(Clone, Debug)]
-pub struct SweepOutput {
-    /// The centred input.
-    pub input: PathBuf,
-    /// One PNG per view, in sweep order.
-    pub frames: Vec<PathBuf>,
-    /// The animated GIF of the frames.
-    pub gif: PathBuf,
-    /// The PLY of the 3DGS head's Gaussians, when asked for.
-    pub ply: Option<PathBuf>,
-}
-
-/// The file name of a sweep frame: `NNN_yaw+10_pitch-5.png`.
-pub fn frame_name(view: &ViewAngles) -> String {
+/// The file name of a synthesised view: `view_INDEX_yaw+YY_pitch+PP.png`.
+pub fn view_file_name(view: &ViewAngles) -> String {
     format!(
-        "{:03}_yaw{:+}_pitch{:+}.png",
-        view.index,
-        round_tenth(view.yaw_deg),
-        round_tenth(view.pitch_deg)
+        "view_{:03}_yaw{:+03.0}_pitch{:+03.0}.png",
+        view.index, view.yaw_deg, view.pitch_deg
     )
 }
 
-fn round_tenth(v: f32) -> f32 {
-    let r = (v * 10.0).round() / 10.0;
-    if r == 0.0 { 0.0 } else { r }
+/// Where the person in a photo was found.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Framing {
+    /// From the mask given.
+    Mask,
+    /// From the photo's alpha channel.
+    Alpha,
+    /// Neither: the whole photo (centre-cropped to a square) is the input.
+    WholeImage,
 }
 
-/// Renders `photo` (prepared, at the model's resolution, seen by the frontal camera) in each of
-/// `views` with `model` on `device`, writing `input.png`, one PNG per view and `sweep.gif` into
-/// `out`; with `ply`, also the 3DGS head's Gaussians there.
+/// A photo framed like the training data, composited on the background.
+#[derive(Clone, Debug)]
+pub struct FramedPhoto {
+    /// The model's input, `resolution x resolution`, RGB in [0, 1].
+    pub image: Rgb32FImage,
+    /// How the person was found.
+    pub framing: Framing,
+}
+
+/// Reads a photo (and an optional mask) and frames it: see [`frame_photo`].
 ///
 /// # Errors
-/// Output that cannot be written; [`TrainError::NoGaussianHead`] for `ply` on a model without
-/// a 3DGS head.
-#[allow(clippy::too_many_arguments)]
-pub fn render_sweep(
-    model: &Prism,
-    photo: &Rgb32FImage,
-    views: &[ViewAngles],
+/// An unreadable image or mask, a mask of another size, or an empty mask.
+pub fn read_photo(
+    path: &Path,
+    mask: Option<&Path>,
+    resolution: u32,
     background: [f32; 3],
-    device: &Device,
-    out: &Path,
-    ply: Option<&Path>,
-    progress: bool,
-) -> Result<SweepOutput> {
-    let resolution = photo.width();
-    if photo.height() != resolution {
-        return Err(TrainError::input(
-            out,
-            format!(
-                "the prepared photo must be square, got {}x{}",
-                photo.width(),
-                photo.height()
-            ),
-        ));
+) -> Result<FramedPhoto> {
+    let photo = read_image(path)?;
+    let mask = match mask {
+        Some(m) => {
+            let mask = read_image(m)?.to_luma8();
+            if mask.dimensions() != (photo.width(), photo.height()) {
+                return Err(input_error(
+                    m,
+                    format!(
+                        "the mask is {}x{} but the photo {} is {}x{}",
+                        mask.width(),
+                        mask.height(),
+                        path.display(),
+                        photo.width(),
+                        photo.height()
+                    ),
+                ));
+            }
+            Some((m, mask))
+        }
+        None => None,
+    };
+    frame_photo(
+        &photo,
+        mask.as_ref().map(|(_, m)| m),
+        resolution,
+        background,
+    )
+    .map_err(|message| input_error(mask.as_ref().map_or(path, |(m, _)| m), message))
+}
+
+/// Frames a photo like the training data: the person (pixels whose mask, or else alpha, is
+/// above one half) is scaled to span [`PERSON_HEIGHT_FRACTION`] of the image height, its
+/// bounding box centred, the rest composited on `background`, at `resolution` pixels square.
+/// Without a mask and alpha, the photo is centre-cropped to a square and resized.
+///
+/// # Errors
+/// A message when the mask (or alpha) selects no pixel.
+pub fn frame_photo(
+    photo: &DynamicImage,
+    mask: Option<&GrayImage>,
+    resolution: u32,
+    background: [f32; 3],
+) -> std::result::Result<FramedPhoto, String> {
+    let mut rgba: Rgba32FImage = photo.to_rgba32f();
+    let framing = if let Some(mask) = mask {
+        for (p, m) in rgba.pixels_mut().zip(mask.pixels()) {
+            p.0[3] = f32::from(m.0[0]) / 255.0;
+        }
+        Framing::Mask
+    } else if photo.color().has_alpha() && rgba.pixels().any(|p| p.0[3] < 1.0) {
+        Framing::Alpha
+    } else {
+        Framing::WholeImage
+    };
+    let (w, h) = rgba.dimensions();
+    // The square window of the photo that becomes the model's input: (left, top, side).
+    let (left, top, side) = match framing {
+        Framing::WholeImage => {
+            let side = w.min(h) as f32;
+            ((w as f32 - side) / 2.0, (h as f32 - side) / 2.0, side)
+        }
+        _ => {
+            let mut bounds: Option<[u32; 4]> = None;
+            for (x, y, p) in rgba.enumerate_pixels() {
+                if p.0[3] > 0.5 {
+                    let b = bounds.get_or_insert([x, y, x, y]);
+                    *b = [b[0].min(x), b[1].min(y), b[2].max(x), b[3].max(y)];
+                }
+            }
+            let [x0, y0, x1, y1] = bounds.ok_or("the mask selects no pixel (all below 0.5)")?;
+            let side = (y1 + 1 - y0) as f32 / PERSON_HEIGHT_FRACTION;
+            let (cx, cy) = ((x0 + x1 + 1) as f32 / 2.0, (y0 + y1 + 1) as f32 / 2.0);
+            (cx - side / 2.0, cy - side / 2.0, side)
+        }
+    };
+    let premultiplied = Rgba32FImage::from_fn(w, h, |x, y| {
+        let [r, g, b, a] = rgba.get_pixel(x, y).0;
+        let a = if framing == Framing::WholeImage {
+            1.0
+        } else {
+            a
+        };
+        image::Rgba([r * a, g * a, b * a, a])
+    });
+    let image = resample_window(&premultiplied, (left, top, side), resolution, background);
+    Ok(FramedPhoto { image, framing })
+}
+
+/// The square window `(left, top, side)` of a premultiplied RGBA image, area-averaged into
+/// `resolution x resolution` pixels and composited on `background` (outside the image: the
+/// background).
+fn resample_window(
+    premultiplied: &Rgba32FImage,
+    (left, top, side): (f32, f32, f32),
+    resolution: u32,
+    background: [f32; 3],
+) -> Rgb32FImage {
+    let (w, h) = premultiplied.dimensions();
+    let scale = side / resolution as f32;
+    // Samples per output pixel along each axis: enough to average the source pixels it covers.
+    let n = (scale.ceil() as u32).clamp(1, 16);
+    Rgb32FImage::from_fn(resolution, resolution, |ox, oy| {
+        let mut acc = [0.0f32; 4];
+        for sy in 0..n {
+            for sx in 0..n {
+                let x = left + (ox as f32 + (sx as f32 + 0.5) / n as f32) * scale;
+                let y = top + (oy as f32 + (sy as f32 + 0.5) / n as f32) * scale;
+                let sample = bilinear(premultiplied, x - 0.5, y - 0.5, w, h);
+                for (a, s) in acc.iter_mut().zip(sample) {
+                    *a += s;
+                }
+            }
+        }
+        let k = (n * n) as f32;
+        let alpha = acc[3] / k;
+        Rgb([0, 1, 2].map(|c| (acc[c] / k + (1.0 - alpha) * background[c]).clamp(0.0, 1.0)))
+    })
+}
+
+/// Bilinear sample at continuous pixel coordinates (pixel centres at integers); transparent
+/// outside the image's area.
+fn bilinear(image: &Rgba32FImage, x: f32, y: f32, w: u32, h: u32) -> [f32; 4] {
+    let (wf, hf) = (w as f32, h as f32);
+    if x < -0.5 || y < -0.5 || x > wf - 0.5 || y > hf - 0.5 {
+        return [0.0; 4];
     }
-    std::fs::create_dir_all(out).map_err(|e| TrainError::io(out, e))?;
-    let frontal = protocol_camera(
+    // Inside the image's area: clamp to the outer pixel centres (edge pixels extend).
+    let (x, y) = (x.clamp(0.0, wf - 1.0), y.clamp(0.0, hf - 1.0));
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = (x - x0, y - y0);
+    let at = |xi: f32, yi: f32| -> [f32; 4] {
+        if xi < 0.0 || yi < 0.0 || xi >= w as f32 || yi >= h as f32 {
+            [0.0; 4]
+        } else {
+            image.get_pixel(xi as u32, yi as u32).0
+        }
+    };
+    let (a, b, c, d) = (
+        at(x0, y0),
+        at(x0 + 1.0, y0),
+        at(x0, y0 + 1.0),
+        at(x0 + 1.0, y0 + 1.0),
+    );
+    std::array::from_fn(|i| {
+        (a[i] * (1.0 - fx) + b[i] * fx) * (1.0 - fy) + (c[i] * (1.0 - fx) + d[i] * fx) * fy
+    })
+}
+
+/// The protocol's frontal camera (view 0) at `resolution` pixels square: the camera a photo
+/// without one is given.
+pub fn frontal_camera(resolution: u32) -> Camera {
+    let protocol = ViewingProtocol::default();
+    protocol.camera(
         &ViewAngles {
             index: 0,
             yaw_deg: 0.0,
             pitch_deg: 0.0,
         },
-        resolution,
-    );
-    let ply = match ply {
-        Some(path) => {
-            let pairs = Pairs::from_source(photo, frontal, &[frontal], background, device);
-            export_gaussians(model, &pairs, path)?;
-            Some(path.to_path_buf())
-        }
-        None => None,
-    };
-    let model = nvs_model(model);
-    let input = out.join(INPUT_PNG);
-    save_png(&input, &rgb32_to_rgb8(photo))?;
-    let bar = progress_bar(progress, views.len() as u64, "rendering views");
+        Intrinsics::protocol_default(resolution, resolution),
+    )
+}
+
+/// The views `model` (an inference model on `device`) synthesises of `image` (framed, seen by
+/// the frontal camera) at the cameras of `views`, `batch` pairs per forward pass, as 8-bit RGB.
+pub fn synthesise_views(
+    model: &Prism,
+    image: &Rgb32FImage,
+    views: &[ViewAngles],
+    background: [f32; 3],
+    batch: usize,
+    device: &Device,
+    bar: &ProgressBar,
+) -> Vec<RgbImage> {
+    let res = image.width();
+    let protocol = ViewingProtocol::default();
+    let intrinsics = Intrinsics::protocol_default(res, res);
     let mut frames = Vec::new();
-    let mut images: Vec<RgbImage> = Vec::new();
-    for chunk in views.chunks(EVAL_BATCH) {
-        let cameras: Vec<Camera> = chunk
+    for chunk in views.chunks(batch.max(1)) {
+        let targets: Vec<Camera> = chunk
             .iter()
-            .map(|v| protocol_camera(v, resolution))
+            .map(|v| protocol.camera(v, intrinsics))
             .collect();
-        let pairs = Pairs::from_source(photo, frontal, &cameras, background, device);
-        let host = HostImages::from_tensor(synthesise(&model, &pairs));
-        for (i, view) in chunk.iter().enumerate() {
-            let path = out.join(frame_name(view));
-            let image = host.rgb8(i);
-            save_png(&path, &image)?;
-            frames.push(path);
-            images.push(image);
-        }
+        let pairs = Pairs::from_source(image, frontal_camera(res), &targets, background, device);
+        let host = HostImages::from_tensor(synthesise(model, &pairs));
+        frames.extend((0..chunk.len()).map(|i| host.rgb8(i)));
         bar.inc(chunk.len() as u64);
     }
-    bar.finish_and_clear();
-    let gif = out.join(SWEEP_GIF);
-    save_gif(&gif, &images, GIF_DELAY_MS)?;
-    Ok(SweepOutput {
-        input,
-        frames,
-        gif,
-        ply,
-    })
+    frames
 }
 
-/// The image files (png, jpg, jpeg) directly inside `dir`, sorted by name: the frames of a
-/// video.
-///
-/// # Errors
-/// An unreadable folder, or one without images.
-pub fn list_frames(dir: &Path) -> Result<Vec<PathBuf>> {
-    let mut frames = Vec::new();
-    for entry in std::fs::read_dir(dir).map_err(|e| TrainError::io(dir, e))? {
-        let path = entry.map_err(|e| TrainError::io(dir, e))?.path();
-        let is_image = path
-            .extension()
-            .and_then(|e| e.to_str())
-            .is_some_and(|e| FRAME_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()));
-        if path.is_file() && is_image {
-            frames.push(path);
+/// How `prism infer` runs.
+#[derive(Clone, Debug)]
+pub struct InferOptions {
+    /// The views to synthesise.
+    pub sweep: Sweep,
+    /// Degrees between consecutive views of the sweep.
+    pub step_deg: f32,
+    /// Pairs per forward pass.
+    pub batch: usize,
+    /// Milliseconds per frame of the GIF.
+    pub gif_delay_ms: u32,
+    /// Draw a progress bar on stderr.
+    pub progress: bool,
+}
+
+impl Default for InferOptions {
+    fn default() -> Self {
+        Self {
+            sweep: Sweep::Yaw,
+            step_deg: 10.0,
+            batch: 8,
+            gif_delay_ms: 120,
+            progress: false,
         }
     }
-    if frames.is_empty() {
-        return Err(TrainError::input(
-            dir,
-            "the folder holds no image (png, jpg, jpeg)",
-        ));
-    }
-    frames.sort();
-    Ok(frames)
 }
 
-/// Opens an image, naming the file in the error.
-fn open_image(path: &Path) -> Result<DynamicImage> {
+/// What `prism infer` wrote for one photo.
+#[derive(Clone, Debug)]
+pub struct InferredPhoto {
+    /// The photo.
+    pub input: PathBuf,
+    /// How its person was found.
+    pub framing: Framing,
+    /// The folder of its views.
+    pub dir: PathBuf,
+    /// One PNG per view of the sweep.
+    pub views: Vec<PathBuf>,
+    /// The animated GIF of the sweep.
+    pub gif: PathBuf,
+}
+
+/// Runs inference with a checkpoint (a checkpoint folder or a run folder's latest) on `input`:
+/// a photo (with an optional `mask`), or a folder of video frames (each frame on its own, into
+/// `out/FRAME_NAME/`). Writes the framed input, the sweep's PNGs and its GIF; with `export_ply`
+/// (one photo only) also the 3DGS head's Gaussians as a standard 3DGS PLY.
+///
+/// # Errors
+/// Unreadable checkpoints or images, a mask of another size, an empty mask, a folder without
+/// images, `export_ply` for a model without a 3DGS head or for a folder, I/O errors.
+pub fn infer(
+    checkpoint: &Path,
+    input: &Path,
+    mask: Option<&Path>,
+    out: &Path,
+    backend: BackendKind,
+    export_ply: Option<&Path>,
+    options: &InferOptions,
+) -> Result<Vec<InferredPhoto>> {
+    let photos = if input.is_dir() {
+        if mask.is_some() || export_ply.is_some() {
+            return Err(input_error(
+                input,
+                "--mask and --export-ply take one photo, not a folder of frames",
+            ));
+        }
+        let photos = list_images(input)?;
+        if photos.is_empty() {
+            return Err(input_error(input, "the folder holds no png or jpg image"));
+        }
+        photos
+    } else {
+        vec![input.to_path_buf()]
+    };
+    let device = backend.device()?;
+    let (model, config) = load_model(checkpoint, &device)?;
+    if export_ply.is_some() && model.gs_head.is_none() {
+        return Err(TrainError::checkpoint(
+            checkpoint,
+            "the model has no 3DGS head (model.gs_head = false): nothing to export as PLY",
+        ));
+    }
+    let resolution = config.model.resolution as u32;
+    let background = config.data.background;
+    let views = sweep_views(
+        options.sweep,
+        options.step_deg,
+        ViewingProtocol::default().max_angle_deg,
+    );
+    let inference = inference_model(&model);
+    let bar = progress_bar(options.progress, (photos.len() * views.len()) as u64);
+    let mut results = Vec::new();
+    for photo in &photos {
+        let framed = read_photo(photo, mask, resolution, background)?;
+        let dir = if input.is_dir() {
+            out.join(photo.file_stem().unwrap_or_default())
+        } else {
+            out.to_path_buf()
+        };
+        std::fs::create_dir_all(&dir).map_err(|e| TrainError::io(&dir, e))?;
+        save_png(&dir.join(INPUT_PNG), &rgb8(&framed.image))?;
+        let frames = synthesise_views(
+            &inference,
+            &framed.image,
+            &views,
+            background,
+            options.batch,
+            &device,
+            &bar,
+        );
+        let mut paths = Vec::new();
+        for (view, frame) in views.iter().zip(&frames) {
+            let path = dir.join(view_file_name(view));
+            save_png(&path, frame)?;
+            paths.push(path);
+        }
+        let gif = dir.join(SWEEP_GIF);
+        save_gif(&gif, &frames, options.gif_delay_ms)?;
+        if let Some(ply) = export_ply {
+            let camera = frontal_camera(resolution);
+            let pairs = Pairs::from_source(&framed.image, camera, &[camera], background, &device);
+            let gaussians = forward_pairs(&model, &pairs)
+                .gaussians
+                .expect("a model with a 3DGS head returns its Gaussians");
+            gaussians.save_ply(0, ply)?;
+        }
+        results.push(InferredPhoto {
+            input: photo.clone(),
+            framing: framed.framing,
+            dir,
+            views: paths,
+            gif,
+        });
+    }
+    bar.finish_and_clear();
+    Ok(results)
+}
+
+/// The png / jpg / jpeg files of a folder, sorted by name (the frames of a video).
+fn list_images(dir: &Path) -> Result<Vec<PathBuf>> {
+    let entries = std::fs::read_dir(dir).map_err(|e| TrainError::io(dir, e))?;
+    let mut out = Vec::new();
+    for entry in entries {
+        let path = entry.map_err(|e| TrainError::io(dir, e))?.path();
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase);
+        if path.is_file() && matches!(ext.as_deref(), Some("png" | "jpg" | "jpeg")) {
+            out.push(path);
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
+fn read_image(path: &Path) -> Result<DynamicImage> {
     image::ImageReader::open(path)
         .map_err(|e| TrainError::io(path, e))?
         .with_guessed_format()
         .map_err(|e| TrainError::io(path, e))?
         .decode()
-        .map_err(|e| TrainError::input(path, format!("cannot decode the image: {e}")))
+        .map_err(|e| input_error(path, format!("not a readable image: {e}")))
+}
+
+fn input_error(path: &Path, message: impl Into<String>) -> TrainError {
+    TrainError::io(path, std::io::Error::other(message.into()))
+}
+
+fn rgb8(image: &Rgb32FImage) -> RgbImage {
+    RgbImage::from_fn(image.width(), image.height(), |x, y| {
+        Rgb(image.get_pixel(x, y).0.map(to_u8))
+    })
+}
+
+fn progress_bar(show: bool, len: u64) -> ProgressBar {
+    let target = if show {
+        ProgressDrawTarget::stderr()
+    } else {
+        ProgressDrawTarget::hidden()
+    };
+    ProgressBar::with_draw_target(Some(len), target).with_style(
+        ProgressStyle::with_template("synthesising views [{bar:30}] {pos}/{len} (ETA {eta})")
+            .expect("valid template"),
+    )
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use image::{Luma, Rgba, RgbaImage};
 
     #[test]
-    fn sweeps_cover_minus_to_plus_max() {
-        let yaw = sweep_views(Sweep::Yaw, 10.0, 30.0).unwrap();
+    fn sweeps_cover_plus_minus_thirty_degrees() {
+        let yaw = sweep_views(Sweep::Yaw, 10.0, 30.0);
+        let angles: Vec<(f32, f32)> = yaw.iter().map(|v| (v.yaw_deg, v.pitch_deg)).collect();
         assert_eq!(
-            yaw.iter().map(|v| v.yaw_deg).collect::<Vec<_>>(),
-            vec![-30.0, -20.0, -10.0, 0.0, 10.0, 20.0, 30.0]
+            angles,
+            [-30.0, -20.0, -10.0, 0.0, 10.0, 20.0, 30.0].map(|a| (a, 0.0))
         );
-        assert!(yaw.iter().all(|v| v.pitch_deg == 0.0));
-        let pitch = sweep_views(Sweep::Pitch, 25.0, 30.0).unwrap();
-        assert_eq!(
-            pitch.iter().map(|v| v.pitch_deg).collect::<Vec<_>>(),
-            vec![-30.0, -5.0, 20.0, 30.0]
-        );
-        let grid = sweep_views(Sweep::Grid, 30.0, 30.0).unwrap();
+        assert_eq!(sweep_views(Sweep::Pitch, 25.0, 30.0).len(), 4); // -30, -5, 20, 30
+        let grid = sweep_views(Sweep::Grid, 30.0, 30.0);
         assert_eq!(grid.len(), 9);
-        assert_eq!((grid[5].yaw_deg, grid[5].pitch_deg), (30.0, 0.0));
+        assert_eq!((grid[1].yaw_deg, grid[1].pitch_deg), (0.0, -30.0));
         assert_eq!(grid[8].index, 8);
-        assert!(sweep_views(Sweep::Yaw, 0.0, 30.0).is_err());
-        assert_eq!("grid".parse::<Sweep>(), Ok(Sweep::Grid));
-        assert!("roll".parse::<Sweep>().is_err());
+        assert_eq!(view_file_name(&yaw[0]), "view_000_yaw-30_pitch+00.png");
     }
 
+    /// A photo with a red person box: the frame puts the box centred at 90 % of the height.
     #[test]
-    fn frame_names_sort_in_sweep_order() {
-        let v = ViewAngles {
-            index: 3,
-            yaw_deg: -0.0,
-            pitch_deg: 12.5,
-        };
-        assert_eq!(frame_name(&v), "003_yaw+0_pitch+12.5.png");
-    }
-
-    /// A person box in a large photo ends up centred, [`PERSON_HEIGHT_FRACTION`] of the height.
-    #[test]
-    fn the_person_is_centred_and_scaled_like_the_training_data() {
-        let (w, h) = (300u32, 200u32);
-        // A 40 x 100 px red box at x 20..60, y 50..150 on a black, transparent canvas.
-        let inside = |x: u32, y: u32| (20..60).contains(&x) && (50..150).contains(&y);
-        let rgb = Rgb32FImage::from_fn(w, h, |x, y| {
-            Rgb(if inside(x, y) {
-                [1.0, 0.0, 0.0]
+    fn a_masked_person_is_centred_and_scaled_like_the_training_data() {
+        // 200 x 100 photo, person (red) at x 20..40, y 10..60 (50 px tall), grey elsewhere.
+        let photo = RgbaImage::from_fn(200, 100, |x, y| {
+            if (20..40).contains(&x) && (10..60).contains(&y) {
+                Rgba([255, 0, 0, 255])
             } else {
-                [0.0; 3]
-            })
+                Rgba([90, 90, 90, 255])
+            }
         });
-        let alpha = ImageBuffer::from_fn(w, h, |x, y| Luma([if inside(x, y) { 1.0 } else { 0.0 }]));
-        let out = prepare_photo(&rgb, &alpha, Cutout::Alpha, 100, [1.0, 1.0, 1.0]).unwrap();
-        // 100 px of box become 94.8 px centred on row 51.7: rows 4.3..99.1; 40 px wide ->
-        // 37.9: cols 31.0..69.0.
-        let red = |x: u32, y: u32| {
-            let p = out.get_pixel(x, y).0;
-            p[0] > 0.9 && p[1] < 0.1
-        };
-        let white = |x: u32, y: u32| out.get_pixel(x, y).0.iter().all(|&c| c > 0.9);
-        assert!(red(50, 50) && red(32, 5) && red(67, 98));
-        assert!(white(50, 3) && white(29, 50) && white(70, 50));
-        assert!(white(0, 0) && white(99, 0));
-        let empty = ImageBuffer::from_pixel(w, h, Luma([0.0]));
-        assert!(prepare_photo(&rgb, &empty, Cutout::Mask, 100, [1.0; 3]).is_err());
+        let mask = GrayImage::from_fn(200, 100, |x, y| {
+            Luma([if (20..40).contains(&x) && (10..60).contains(&y) {
+                255
+            } else {
+                0
+            }])
+        });
+        let framed = frame_photo(
+            &DynamicImage::ImageRgba8(photo.clone()),
+            Some(&mask),
+            40,
+            [1.0, 1.0, 1.0],
+        )
+        .unwrap();
+        assert_eq!(framed.framing, Framing::Mask);
+        let red = |p: &Rgb<f32>| p.0[0] > 0.9 && p.0[1] < 0.1;
+        let rows: Vec<u32> = (0..40)
+            .filter(|&y| (0..40).any(|x| red(framed.image.get_pixel(x, y))))
+            .collect();
+        let cols: Vec<u32> = (0..40)
+            .filter(|&x| (0..40).any(|y| red(framed.image.get_pixel(x, y))))
+            .collect();
+        // 90 % of 40 px = 36 rows, centred (2..38); 20 / 50 * 36 = 14.4 px wide, centred.
+        assert_eq!((rows[0], *rows.last().unwrap()), (2, 37));
+        assert!(cols.len() >= 14 && cols.len() <= 15, "{cols:?}");
+        assert!((cols[0] as f32 + *cols.last().unwrap() as f32 + 1.0) / 2.0 - 20.0 < 1.0);
+        // Off the person: the background, not the grey of the photo.
+        assert_eq!(framed.image.get_pixel(0, 20).0, [1.0, 1.0, 1.0]);
+
+        // The same person given by the alpha channel.
+        let mut with_alpha = photo;
+        for (p, m) in with_alpha.pixels_mut().zip(mask.pixels()) {
+            p.0[3] = m.0[0];
+        }
+        let framed_alpha = frame_photo(
+            &DynamicImage::ImageRgba8(with_alpha),
+            None,
+            40,
+            [1.0, 1.0, 1.0],
+        )
+        .unwrap();
+        assert_eq!(framed_alpha.framing, Framing::Alpha);
+        assert_eq!(framed_alpha.image, framed.image);
+
+        // Neither: the whole photo, centre-cropped (the grey middle of the photo).
+        let whole = frame_photo(
+            &DynamicImage::ImageRgb8(
+                DynamicImage::ImageRgba8(RgbaImage::from_pixel(60, 30, Rgba([90, 90, 90, 255])))
+                    .to_rgb8(),
+            ),
+            None,
+            16,
+            [1.0, 1.0, 1.0],
+        )
+        .unwrap();
+        assert_eq!(whole.framing, Framing::WholeImage);
+        assert!((whole.image.get_pixel(0, 0).0[0] - 90.0 / 255.0).abs() < 1e-4);
     }
 
     #[test]
-    fn a_whole_image_is_fitted_into_the_square() {
-        let rgb = Rgb32FImage::from_pixel(40, 20, Rgb([0.0, 0.0, 1.0]));
-        let alpha = ImageBuffer::from_pixel(40, 20, Luma([1.0]));
-        let out = prepare_photo(&rgb, &alpha, Cutout::WholeImage, 20, [1.0; 3]).unwrap();
-        // 40 x 20 -> 20 x 10 in rows 5..15.
-        assert!(out.get_pixel(10, 10).0[2] > 0.99 && out.get_pixel(10, 10).0[0] < 0.01);
-        assert!(out.get_pixel(10, 2).0.iter().all(|&c| c > 0.99));
+    fn an_empty_mask_is_an_error() {
+        let photo = DynamicImage::ImageRgb8(RgbImage::new(8, 8));
+        let err = frame_photo(&photo, Some(&GrayImage::new(8, 8)), 8, [1.0; 3]).unwrap_err();
+        assert!(err.contains("no pixel"), "{err}");
     }
 }

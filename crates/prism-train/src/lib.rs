@@ -12,8 +12,8 @@
 //!   resumed run continues exactly; the default synthetic dataset lives in [`cache_dir`].
 //! - Teacher: [`TeacherTask`] / [`TeacherLoss`].
 //! - Student: [`StudentTask`] / [`StudentLoss`] with [`student_config`] (distillation).
-//! - Evaluation ([`evaluate`]), inference from a photo ([`render_sweep`], [`load_photo`]) and
-//!   the quick start ([`quickstart`]).
+//! - Evaluation ([`evaluate`]: the paper's protocol, per-angle breakdown, FPS, report) and
+//!   inference from a photo ([`infer`]), both through [`predict`]; images in [`images`].
 
 pub mod cache;
 pub mod checkpoint;
@@ -46,20 +46,20 @@ pub use config::{SyntheticDataConfig, TrainConfig, TrainingConfig, config_name, 
 pub use data::{DataOrder, Prefetcher};
 pub use error::TrainError;
 pub use evaluate::{
-    AngleBin, EVALUATION_JSON, EvaluateOptions, Evaluation, PerAngle, REPORT_MD, SubjectScores,
-    evaluate, measure_fps,
+    AngleBin, EvaluateOptions, Evaluation, EvaluationFiles, MeanScores, PerAngle, SubjectGrid,
+    evaluate, evaluate_checkpoint, write_evaluation,
 };
 pub use groups::{HEAD_MODULES, heads_group, heads_pattern, is_head, learning_rates};
 pub use infer::{
-    Cutout, PreparedPhoto, SWEEP_GIF, Sweep, SweepOutput, list_frames, load_photo, protocol_camera,
-    render_sweep, sweep_views,
+    Framing, InferOptions, InferredPhoto, Sweep, frame_photo, frontal_camera, infer, read_photo,
+    sweep_views,
 };
 pub use log::{METRICS_FILE, MetricsLog, read_metrics};
 pub use parallel::{DataParallel, training_devices};
-pub use predict::{Pairs, export_gaussians, nvs_model, synthesise};
+pub use predict::{Pairs, forward_pairs, inference_model, synthesise};
 pub use quickstart::{
-    QuickstartOptions, QuickstartSummary, SMALL_STUDENT_STEPS, SMALL_TEACHER_STEPS, quickstart,
-    quickstart_config,
+    QuickstartModel, QuickstartOptions, QuickstartPlan, QuickstartReport, StudentJob,
+    compress_schedule, quickstart, quickstart_table,
 };
 pub use schedule::WarmupCosine;
 pub use step::{Prediction, StepLoss, StepValues, TRAINEE_FIELD, TrainItem, Trainee};

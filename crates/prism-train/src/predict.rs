@@ -1,17 +1,13 @@
 //! Novel views from a trained model: the one place where evaluation and inference call the
 //! model's forward pass.
 
-use std::path::Path;
-
 use burn::tensor::{Device, Tensor, TensorData};
 use image::Rgb32FImage;
 use prism_data::Camera;
 use prism_data::dataset::PrismBatch;
 use prism_data::dataset::batch::rgb_chw;
 use prism_data::rays::plucker_rays;
-use prism_model::{Prism, Views};
-
-use crate::error::{Result, TrainError};
+use prism_model::{Prism, PrismOutput, Views};
 
 /// A batch of `B` (source, target) pairs as the model takes them, with their cameras.
 #[derive(Clone, Debug)]
@@ -98,8 +94,10 @@ impl Pairs {
             background: self.background,
         }
     }
+}
 
-    /// The views of the pairs (cameras and background), as the geometry parts need them.
+impl Pairs {
+    /// The cameras and background of the pairs, as the geometry parts take them.
     pub fn views(&self) -> Views {
         Views::new(
             self.source_cameras.clone(),
@@ -109,48 +107,28 @@ impl Pairs {
     }
 }
 
-/// `model` for serving novel views: the same weights without the 3DGS head, whose render
-/// `I_gs` is a training signal (and a PLY export, [`export_gaussians`]), not the output.
-pub fn nvs_model(model: &Prism) -> Prism {
+/// The full forward pass of `model` on `pairs` (`model` is an inference model: on a device
+/// without autodiff, or `Module::valid`). With a 3DGS head the output holds its Gaussians.
+pub fn forward_pairs(model: &Prism, pairs: &Pairs) -> PrismOutput {
+    model.forward_views(
+        pairs.source_image.clone(),
+        pairs.source_rays.clone(),
+        pairs.target_rays.clone(),
+        &pairs.views(),
+        &[],
+    )
+}
+
+/// The target views `I_t` the model synthesises for `pairs`, `[B, 3, H, W]` clamped to [0, 1].
+/// A model with a 3DGS head runs it too (a training signal): pass [`inference_model`] to skip
+/// its cost.
+pub fn synthesise(model: &Prism, pairs: &Pairs) -> Tensor<4> {
+    forward_pairs(model, pairs).image.clamp(0.0, 1.0)
+}
+
+/// `model` without its 3DGS head: the NVS output alone, what evaluation times and serves.
+pub fn inference_model(model: &Prism) -> Prism {
     let mut model = model.clone();
     model.gs_head = None;
     model
-}
-
-/// The target views `I_t` the model synthesises for `pairs`, `[B, 3, H, W]` clamped to [0, 1]
-/// (`model` is an inference model, e.g. from [`nvs_model`]: on a device without autodiff).
-pub fn synthesise(model: &Prism, pairs: &Pairs) -> Tensor<4> {
-    model
-        .forward_views(
-            pairs.source_image.clone(),
-            pairs.source_rays.clone(),
-            pairs.target_rays.clone(),
-            &pairs.views(),
-            &[],
-        )
-        .image
-        .clamp(0.0, 1.0)
-}
-
-/// Writes the 3D Gaussians that the model's 3DGS head predicts for the first pair's source
-/// image as a standard 3DGS PLY file (degree-0 colours).
-///
-/// # Errors
-/// [`TrainError::NoGaussianHead`] when the model was built without a 3DGS head
-/// (`model.gs_head = false`); I/O errors naming the file.
-pub fn export_gaussians(model: &Prism, pairs: &Pairs, path: &Path) -> Result<()> {
-    if model.gs_head.is_none() {
-        return Err(TrainError::NoGaussianHead);
-    }
-    let one = pairs.slice(0, 1);
-    let output = model.forward_views(
-        one.source_image.clone(),
-        one.source_rays.clone(),
-        one.target_rays.clone(),
-        &one.views(),
-        &[],
-    );
-    let gaussians = output.gaussians.ok_or(TrainError::NoGaussianHead)?;
-    gaussians.save_ply(0, path)?;
-    Ok(())
 }

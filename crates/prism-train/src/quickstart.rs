@@ -1,260 +1,240 @@
-//! The quick start (`prism quickstart`): on a fresh machine, synthesise the default dataset,
-//! train the teacher, distil the student, evaluate both and compare them; every stage is
-//! resumable (a rerun continues an interrupted stage and reuses finished ones).
+//! `prism quickstart`: the whole pipeline on the shipped configs in one command. Synthesises
+//! the default dataset, trains the teacher, distils the student from it, evaluates both and
+//! tabulates PSNR, SSIM, LPIPS and FPS.
+//!
+//! The step counts are scaled down from the configs' so the whole job fits a time budget on a
+//! 2-core CPU ([`QuickstartPlan::standard`]: the small config, about 25 minutes;
+//! [`QuickstartPlan::fast`]: the tiny config, a few minutes); the distillation schedule is
+//! compressed to the student's steps ([`compress_schedule`]).
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use prism_data::BackendKind;
-use prism_data::dataset::DatasetReader;
-use prism_losses::Lpips;
 
-use crate::checkpoint::{Checkpoint, latest_checkpoint, load_model};
+use crate::cache::ensure_synthetic_dataset;
 use crate::config::TrainingConfig;
 use crate::error::Result;
-use crate::evaluate::{EvaluateOptions, Evaluation, REPORT_MD, evaluate};
-use crate::student::{StudentTask, student_config};
+use crate::evaluate::{EvaluateOptions, Evaluation, EvaluationFiles, evaluate_checkpoint};
 use crate::teacher::TeacherTask;
-use crate::trainer::{RunOptions, RunSummary, Task, train};
+use crate::trainer::{RunOptions, RunSummary, train};
 
-/// configs/small.toml, built in so that the quick start runs from any folder.
-const SMALL_TOML: &str = include_str!("../../../configs/small.toml");
-/// configs/tiny.toml, built in likewise.
-const TINY_TOML: &str = include_str!("../../../configs/tiny.toml");
+/// The small config (128 px), shipped in the binary so quickstart runs from any folder.
+pub const SMALL_CONFIG: &str = include_str!("../../../configs/small.toml");
+/// The tiny config (64 px).
+pub const TINY_CONFIG: &str = include_str!("../../../configs/tiny.toml");
 
-/// Teacher steps of the quick start on the small config: scaled from the config's 600 so that
-/// the whole quick start (synthesis, both trainings, both evaluations) takes under 30 minutes on
-/// a 2-core CPU (see README).
-pub const SMALL_TEACHER_STEPS: usize = 300;
-/// Student steps of the quick start on the small config (the config's 2400-step `[distill]`
-/// schedule scaled to them).
-pub const SMALL_STUDENT_STEPS: usize = 120;
-
-/// Teacher steps of `--fast` (tiny config; its own 40 steps leave the teacher at the
-/// initial model's level).
-pub const FAST_TEACHER_STEPS: usize = 150;
-/// Student steps of `--fast` (the tiny config's 24-step schedule scaled to them).
-pub const FAST_STUDENT_STEPS: usize = 48;
-
-/// How to run the quick start.
+/// What a quickstart runs: the config, the step counts and the evaluation's size.
 #[derive(Clone, Debug)]
-pub struct QuickstartOptions {
-    /// The tiny config (64 px, 6 subjects, [`FAST_TEACHER_STEPS`] + [`FAST_STUDENT_STEPS`]
-    /// steps): about a minute instead of half an hour.
-    pub fast: bool,
-    /// The folder of the two runs and their evaluations.
-    pub out: PathBuf,
-    /// The backend.
-    pub backend: BackendKind,
-    /// Progress bars on stderr.
-    pub progress: bool,
-    /// LPIPS weight file (default: the project's search order).
-    pub lpips_weights: Option<PathBuf>,
+pub struct QuickstartPlan {
+    /// Name of the config (`small` or `tiny`), used in run folder names.
+    pub name: String,
+    /// The config both runs start from.
+    pub config: TrainingConfig,
+    /// Teacher training steps.
+    pub teacher_steps: usize,
+    /// Student distillation steps.
+    pub student_steps: usize,
+    /// Target views per test subject in the evaluations (evenly spread over 1..=100).
+    pub eval_views: usize,
 }
 
-/// What the quick start did.
-#[derive(Clone, Debug)]
-pub struct QuickstartSummary {
-    /// The teacher's run folder.
-    pub teacher_run: PathBuf,
-    /// The student's run folder.
-    pub student_run: PathBuf,
-    /// The dataset trained and evaluated on.
-    pub data_dir: PathBuf,
-    /// The teacher's evaluation.
-    pub teacher: Evaluation,
-    /// The student's evaluation.
-    pub student: Evaluation,
-    /// The teacher's evaluation folder (report.md, evaluation.json, grids/).
-    pub teacher_eval: PathBuf,
-    /// The student's evaluation folder.
-    pub student_eval: PathBuf,
-    /// Wall-clock seconds of the whole quick start.
-    pub seconds: f64,
-}
+impl QuickstartPlan {
+    /// The default plan: the small config, 300 teacher and 150 student steps (the config's
+    /// 600 teacher steps take 16 minutes on the 2-core CPU), 25 views per test subject.
+    ///
+    /// # Errors
+    /// Never for the shipped config; a parse error otherwise.
+    pub fn standard() -> Result<Self> {
+        Ok(Self {
+            name: "small".into(),
+            config: TrainingConfig::parse(SMALL_CONFIG, Path::new("configs/small.toml"))?,
+            teacher_steps: 300,
+            student_steps: 150,
+            eval_views: 25,
+        })
+    }
 
-impl QuickstartSummary {
-    /// The comparison table (Markdown) with the paths of the reports and sample images.
-    pub fn to_table(&self) -> String {
-        let mut t = String::new();
-        let _ = writeln!(t, "| model | PSNR (dB) | SSIM | LPIPS | FPS |");
-        let _ = writeln!(t, "|---|---:|---:|---:|---:|");
-        for (name, e) in [("teacher", &self.teacher), ("student", &self.student)] {
-            let _ = writeln!(
-                t,
-                "| {name} | {:.3} | {:.4} | {:.4} | {:.1} |",
-                e.psnr, e.ssim, e.lpips, e.fps
-            );
-        }
-        let _ = writeln!(t);
-        for (name, dir, e) in [
-            ("teacher", &self.teacher_eval, &self.teacher),
-            ("student", &self.student_eval, &self.student),
-        ] {
-            let _ = writeln!(t, "{name} report: {}", dir.join(REPORT_MD).display());
-            if let Some(grid) = e.subjects.values().find_map(|s| s.grid.as_ref()) {
-                let _ = writeln!(t, "{name} samples: {}", dir.join(grid).display());
-            }
-        }
-        t
+    /// `--fast`: the tiny config, 120 teacher and 60 student steps, 10 views per test subject.
+    ///
+    /// # Errors
+    /// Never for the shipped config; a parse error otherwise.
+    pub fn fast() -> Result<Self> {
+        Ok(Self {
+            name: "tiny".into(),
+            config: TrainingConfig::parse(TINY_CONFIG, Path::new("configs/tiny.toml"))?,
+            teacher_steps: 120,
+            student_steps: 60,
+            eval_views: 10,
+        })
     }
 }
 
-/// The config the quick start trains: the small config with [`SMALL_TEACHER_STEPS`] and
-/// [`SMALL_STUDENT_STEPS`], or with `fast` the tiny config with [`FAST_TEACHER_STEPS`] and
-/// [`FAST_STUDENT_STEPS`]; warm-up and distillation schedule scaled along. Validation and
-/// checkpoints only at the end of each run.
-pub fn quickstart_config(fast: bool) -> TrainingConfig {
-    let (text, name) = if fast {
-        (TINY_TOML, "configs/tiny.toml")
-    } else {
-        (SMALL_TOML, "configs/small.toml")
-    };
-    let mut config =
-        TrainingConfig::parse(text, Path::new(name)).expect("the shipped configs parse");
-    let (teacher_steps, student_steps) = if fast {
-        (FAST_TEACHER_STEPS, FAST_STUDENT_STEPS)
-    } else {
-        (SMALL_TEACHER_STEPS, SMALL_STUDENT_STEPS)
-    };
-    let t = &mut config.train;
-    t.warmup_steps = t.warmup_steps * teacher_steps / t.steps;
-    t.steps = teacher_steps;
-    let d = &mut config.distill;
-    let scale = |v: usize| (v * student_steps / d.steps).max(1);
-    d.start = scale(d.start);
-    d.interval = scale(d.interval);
-    d.steps = student_steps;
-    let t = &mut config.train;
-    t.checkpoint_every = t.steps.max(config.distill.steps);
-    t.validate_every = t.checkpoint_every;
-    t.keep_checkpoints = 1;
-    config
+/// The `[distill]` schedule squeezed into `steps` student steps: the first switch to linear
+/// attention after `steps / (group_size + 1)` steps, then one more block per group at the same
+/// interval, so every block is linear for the last `steps / (group_size + 1)` steps.
+pub fn compress_schedule(config: &mut TrainingConfig, steps: usize) {
+    let interval = (steps / (config.distill.group_size + 1)).max(1);
+    config.distill.start = interval;
+    config.distill.interval = interval;
 }
 
-/// Runs the quick start (see the module doc) into `options.out`: `teacher/` and `student/`
-/// run folders, each with its `evaluation/`.
+/// The student job: distils a student from the teacher run `teacher` with `config`, into
+/// `options.out` (`options.steps` set). `prism distill-student`'s library call.
+pub type StudentJob<'a> = &'a dyn Fn(&TrainingConfig, &Path, &RunOptions) -> Result<RunSummary>;
+
+/// How a quickstart runs.
+#[derive(Clone, Debug)]
+pub struct QuickstartOptions {
+    /// Folder of the runs and evaluations (`teacher/`, `student/`, each with `evaluation/`).
+    pub out: PathBuf,
+    /// Backend of training and evaluation.
+    pub backend: BackendKind,
+    /// LPIPS weight file (default: the project's search order).
+    pub lpips_weights: Option<PathBuf>,
+    /// Progress bars on stderr.
+    pub progress: bool,
+}
+
+/// One trained and evaluated model of the quickstart.
+#[derive(Clone, Debug)]
+pub struct QuickstartModel {
+    /// The run folder.
+    pub run: PathBuf,
+    /// Training steps.
+    pub steps: usize,
+    /// Wall-clock seconds of the training run.
+    pub train_seconds: f64,
+    /// The evaluation.
+    pub evaluation: Evaluation,
+    /// The evaluation's files (JSON, report, grids).
+    pub files: EvaluationFiles,
+}
+
+/// What a quickstart did.
+#[derive(Clone, Debug)]
+pub struct QuickstartReport {
+    /// The dataset trained and evaluated on.
+    pub data_dir: PathBuf,
+    /// Seconds to synthesise (or find) the dataset.
+    pub data_seconds: f64,
+    /// The teacher.
+    pub teacher: QuickstartModel,
+    /// The student.
+    pub student: QuickstartModel,
+    /// Wall-clock seconds of the whole quickstart.
+    pub wall_seconds: f64,
+}
+
+/// Runs the quickstart: dataset, teacher, student (through `student_job`), both evaluations.
+/// Runs already complete in `options.out` are trained again from scratch.
 ///
 /// # Errors
-/// Whatever a stage fails with (synthesis, training, evaluation), naming the file.
-pub fn quickstart(options: &QuickstartOptions) -> Result<QuickstartSummary> {
-    let started = Instant::now();
-    let config = quickstart_config(options.fast);
-    let data_dir = crate::cache::ensure_synthetic_dataset(&config.data, options.progress)?;
-    let teacher_run = options.out.join("teacher");
-    let student_run = options.out.join("student");
-    let run_options = |out: &Path| RunOptions {
-        data: Some(data_dir.clone()),
-        progress: options.progress,
-        lpips_weights: options.lpips_weights.clone(),
-        ..RunOptions::new(out, options.backend)
-    };
-
-    say(options, "training the teacher");
-    let teacher_task = TeacherTask {
-        lpips_weights: options.lpips_weights.clone(),
-    };
-    run_stage(&config, &teacher_task, run_options(&teacher_run), options)?;
-
-    say(options, "distilling the student");
-    let student = student_config(&config);
-    let student_task = StudentTask::new(&student, &teacher_run, options.lpips_weights.clone())?;
-    let mut student_options = run_options(&student_run);
-    student_options.init = Some(student_task.teacher.clone());
-    run_stage(&student, &student_task, student_options, options)?;
-
-    let device = options.backend.device()?;
-    let lpips = Lpips::load_default(options.lpips_weights.as_deref(), &device)?;
-    let reader = DatasetReader::open(&data_dir)?;
-    let eval_options = EvaluateOptions {
+/// Any error of the dataset, training or evaluation.
+pub fn quickstart(
+    plan: &QuickstartPlan,
+    options: &QuickstartOptions,
+    student_job: StudentJob<'_>,
+) -> Result<QuickstartReport> {
+    let start = Instant::now();
+    let data_dir = ensure_synthetic_dataset(&plan.config.data, options.progress)?;
+    let data_seconds = start.elapsed().as_secs_f64();
+    let eval = EvaluateOptions {
+        views: plan.eval_views,
         progress: options.progress,
         ..EvaluateOptions::default()
     };
-    let evaluate_run = |name: &str, run: &Path| -> Result<(Evaluation, PathBuf)> {
-        say(options, &format!("evaluating the {name}"));
-        let (model, config) = load_model(run, &device)?;
-        let out = run.join("evaluation");
-        let e = evaluate(
-            &model,
-            &reader,
-            config.model.resolution as u32,
-            Some(&lpips),
-            &device,
-            &eval_options,
-            Some(&out),
-            &format!("the quick start's {name} ({})", run.display()),
-        )?;
-        Ok((e, out))
+    let run_options = |dir: &Path, steps: usize| {
+        // A fresh run each time: a previous quickstart's folder is replaced.
+        let _ = std::fs::remove_dir_all(dir);
+        RunOptions {
+            data: Some(data_dir.clone()),
+            steps: Some(steps),
+            progress: options.progress,
+            lpips_weights: options.lpips_weights.clone(),
+            ..RunOptions::new(dir, options.backend)
+        }
     };
-    let (teacher, teacher_eval) = evaluate_run("teacher", &teacher_run)?;
-    let (student, student_eval) = evaluate_run("student", &student_run)?;
-    let summary = QuickstartSummary {
-        teacher_run,
-        student_run,
+    let evaluate_run = |run: &Path, steps: usize, seconds: f64| -> Result<QuickstartModel> {
+        let (evaluation, files) = evaluate_checkpoint(
+            run,
+            Some(&data_dir),
+            &run.join("evaluation"),
+            options.backend,
+            options.lpips_weights.as_deref(),
+            &eval,
+        )?;
+        Ok(QuickstartModel {
+            run: run.to_path_buf(),
+            steps,
+            train_seconds: seconds,
+            evaluation,
+            files,
+        })
+    };
+
+    let teacher_dir = options.out.join("teacher");
+    let t0 = Instant::now();
+    let summary = train(
+        &plan.config,
+        &TeacherTask {
+            lpips_weights: options.lpips_weights.clone(),
+        },
+        &run_options(&teacher_dir, plan.teacher_steps),
+    )?;
+    let teacher = evaluate_run(&teacher_dir, summary.steps, t0.elapsed().as_secs_f64())?;
+
+    let student_dir = options.out.join("student");
+    let mut student_config = plan.config.clone();
+    compress_schedule(&mut student_config, plan.student_steps);
+    let t0 = Instant::now();
+    let summary = student_job(
+        &student_config,
+        &teacher_dir,
+        &run_options(&student_dir, plan.student_steps),
+    )?;
+    let student = evaluate_run(&student_dir, summary.steps, t0.elapsed().as_secs_f64())?;
+    Ok(QuickstartReport {
         data_dir,
+        data_seconds,
         teacher,
         student,
-        teacher_eval,
-        student_eval,
-        seconds: started.elapsed().as_secs_f64(),
-    };
-    let md = format!(
-        "# prism quick start\n\n{}\n\nDataset: {}\n\nWall time: {:.0} s\n",
-        summary.to_table(),
-        summary.data_dir.display(),
-        summary.seconds
-    );
-    crate::images::save_text(&options.out.join("quickstart.md"), &md)?;
-    Ok(summary)
+        wall_seconds: start.elapsed().as_secs_f64(),
+    })
 }
 
-/// Trains one stage: fresh, resumed from an interrupted run, or skipped when its run folder
-/// already holds the last checkpoint.
-fn run_stage(
-    config: &TrainingConfig,
-    task: &dyn Task,
-    mut run: RunOptions,
-    options: &QuickstartOptions,
-) -> Result<Option<RunSummary>> {
-    if let Some(latest) = latest_checkpoint(&run.out)? {
-        let done = Checkpoint::read(&latest)?.state.step;
-        if done >= config.train.steps {
-            say(
-                options,
-                &format!("  reusing {} (step {done})", latest.display()),
-            );
-            return Ok(None);
-        }
-        run.resume = true;
-        run.init = None;
-    }
-    let summary = train(config, task, &run)?;
-    if options.progress {
-        eprintln!(
-            "  {} steps in {} ({:.2} s per step)",
-            summary.steps,
-            summary.run_dir.display(),
-            summary.seconds_per_step
+/// The quickstart's result table (Markdown) and where the reports and sample images are.
+pub fn quickstart_table(report: &QuickstartReport) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "| model | steps | train (s) | PSNR (dB) | SSIM | LPIPS | FPS |"
+    );
+    let _ = writeln!(out, "|---|---:|---:|---:|---:|---:|---:|");
+    for (name, m) in [("teacher", &report.teacher), ("student", &report.student)] {
+        let e = &m.evaluation;
+        let _ = writeln!(
+            out,
+            "| {name} | {} | {:.0} | {:.3} | {:.4} | {:.4} | {:.2} |",
+            m.steps, m.train_seconds, e.psnr, e.ssim, e.lpips, e.fps
         );
     }
-    Ok(Some(summary))
-}
-
-/// A progress line on stderr.
-fn say(options: &QuickstartOptions, what: &str) {
-    if options.progress {
-        eprintln!("quickstart: {what}");
+    let _ = writeln!(out);
+    for (name, m) in [("teacher", &report.teacher), ("student", &report.student)] {
+        let _ = writeln!(out, "{name} report: {}", m.files.report.display());
+        if let Some(grid) = m.files.grids.first() {
+            let _ = writeln!(out, "{name} sample images: {}", grid.display());
+        }
     }
-}
-
-/// The default output folder: `runs/quickstart` (`runs/quickstart-fast` with `fast`).
-pub fn default_out(fast: bool) -> PathBuf {
-    PathBuf::from("runs").join(if fast {
-        "quickstart-fast"
-    } else {
-        "quickstart"
-    })
+    let _ = writeln!(
+        out,
+        "dataset {} ({:.0} s), total wall time {:.1} min",
+        report.data_dir.display(),
+        report.data_seconds,
+        report.wall_seconds / 60.0
+    );
+    out
 }
 
 #[cfg(test)]
@@ -262,20 +242,16 @@ mod tests {
     use super::*;
 
     #[test]
-    fn small_quickstart_scales_the_schedules() {
-        let c = quickstart_config(false);
-        assert_eq!(c.train.steps, SMALL_TEACHER_STEPS);
-        assert_eq!(c.train.warmup_steps, 15);
-        assert_eq!(c.distill.steps, SMALL_STUDENT_STEPS);
-        assert_eq!((c.distill.start, c.distill.interval), (15, 15));
-        assert_eq!(c.model.resolution, 128);
-        let fast = quickstart_config(true);
-        assert_eq!(fast.model.resolution, 64);
-        assert_eq!(fast.train.steps, FAST_TEACHER_STEPS);
-        assert_eq!(fast.train.checkpoint_every, FAST_TEACHER_STEPS);
-        assert_eq!((fast.distill.start, fast.distill.interval), (8, 8));
-        // The student's last switch comes before its last step (it has steps to recover).
-        let d = &c.distill;
-        assert!(d.start + 4 * d.interval < d.steps);
+    fn shipped_plans_parse_and_compress_the_schedule() {
+        let mut plan = QuickstartPlan::fast().unwrap();
+        assert_eq!(plan.config.model.resolution, 64);
+        compress_schedule(&mut plan.config, 30);
+        // group_size 3: switches at 7, 14, 21; the last 9 steps fully linear.
+        assert_eq!(
+            (plan.config.distill.start, plan.config.distill.interval),
+            (7, 7)
+        );
+        let standard = QuickstartPlan::standard().unwrap();
+        assert_eq!(standard.config.model.resolution, 128);
     }
 }

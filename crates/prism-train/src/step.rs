@@ -131,14 +131,12 @@ impl InferenceStep for Trainee {
     type Input = PrismBatch;
     type Output = Prediction;
 
-    /// The NVS decoder's images of the batch's target views.
+    /// The NVS decoder's images of the batch's target views. The 3DGS head (a training signal,
+    /// the only part that reads the background) is skipped, so no background is needed.
     fn step(&self, batch: PrismBatch) -> Prediction {
-        let out = self.prism.forward(
-            batch.source_image,
-            batch.source_rays,
-            batch.target_rays,
-            &[],
-        );
+        let mut model = self.prism.clone();
+        model.gs_head = None;
+        let out = model.forward_batch(&batch, [0.0; 3], &[]);
         Prediction { image: out.image }
     }
 }

@@ -1,0 +1,72 @@
+//! The quickstart's orchestration on a shrunken plan (32 px, a few steps, ndarray): dataset,
+//! teacher, student job, both evaluations and the table. The student job here fine-tunes the
+//! teacher's weights with the teacher's objective (`prism distill-student` is the real one).
+
+use std::path::Path;
+
+use prism_data::BackendKind;
+use prism_train::{
+    QuickstartOptions, QuickstartPlan, RunOptions, TeacherTask, TrainingConfig, quickstart,
+    quickstart_table, train,
+};
+
+#[test]
+fn quickstart_trains_evaluates_both_models_and_tabulates() {
+    let root = std::env::temp_dir().join(format!("prism-quickstart-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    // SAFETY: the only test of this binary; set before anything reads it.
+    unsafe { std::env::set_var(prism_train::CACHE_ENV, root.join("cache")) };
+    let mut plan = QuickstartPlan::fast().unwrap();
+    plan.config.model.resolution = 32;
+    plan.config.losses.lpips = 0.0;
+    plan.config.train.validate_every = 0;
+    plan.config.train.validation_views = 2;
+    plan.config.data.subjects = 3;
+    plan.config.data.resolution = 32;
+    plan.config.data.test_fraction = 0.34;
+    plan.teacher_steps = 3;
+    plan.student_steps = 2;
+    plan.eval_views = 4;
+    let options = QuickstartOptions {
+        out: root.join("out"),
+        backend: BackendKind::Ndarray,
+        lpips_weights: None,
+        progress: false,
+    };
+    let student = |config: &TrainingConfig, teacher: &Path, run: &RunOptions| {
+        let run = RunOptions {
+            init: Some(teacher.to_path_buf()),
+            ..run.clone()
+        };
+        train(
+            config,
+            &TeacherTask {
+                lpips_weights: None,
+            },
+            &run,
+        )
+    };
+    let report = quickstart(&plan, &options, &student).unwrap();
+    assert_eq!((report.teacher.steps, report.student.steps), (3, 2));
+    assert_eq!(report.teacher.run, root.join("out/teacher"));
+    for model in [&report.teacher, &report.student] {
+        let e = &model.evaluation;
+        assert_eq!(e.views_per_subject, 4);
+        assert_eq!(e.subjects.len(), 1);
+        assert!(e.psnr.is_finite() && e.ssim.is_finite() && e.lpips.is_finite() && e.fps > 0.0);
+        assert!(model.files.report.is_file() && model.files.json.is_file());
+        assert!(model.files.grids.iter().all(|g| g.is_file()));
+    }
+    // The student starts from the teacher's weights, then trains on: other scores.
+    assert_ne!(
+        report.teacher.evaluation.psnr,
+        report.student.evaluation.psnr
+    );
+    let table = quickstart_table(&report);
+    assert!(
+        table.contains("| teacher | 3 |") && table.contains("| student | 2 |"),
+        "{table}"
+    );
+    assert!(table.contains("student report: "), "{table}");
+    let _ = std::fs::remove_dir_all(&root);
+}
