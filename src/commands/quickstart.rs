@@ -14,7 +14,8 @@ use prism_train::{
 /// LPIPS and FPS with the paths of the reports and sample images.
 ///
 /// The step counts are scaled down from the config's so the job fits about 25 minutes on a
-/// 2-core CPU (flex): 300 teacher and 150 student steps, 25 target views per test subject.
+/// 2-core CPU (flex): 300 teacher and 150 student steps, the protocol's 100 target views per
+/// test subject.
 /// --fast uses the tiny config (120 and 60 steps, 10 views): a few minutes.
 #[derive(Args, Debug)]
 pub struct QuickstartArgs {

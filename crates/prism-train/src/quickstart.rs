@@ -43,7 +43,8 @@ pub struct QuickstartPlan {
 
 impl QuickstartPlan {
     /// The default plan: the small config, 300 teacher and 150 student steps (the config's
-    /// 600 teacher steps take 16 minutes on the 2-core CPU), 25 views per test subject.
+    /// 600 teacher steps alone take about 20 minutes on the 2-core CPU), the protocol's 100
+    /// views per test subject (the two evaluations take about 1.5 minutes).
     ///
     /// # Errors
     /// Never for the shipped config; a parse error otherwise.
@@ -53,7 +54,7 @@ impl QuickstartPlan {
             config: TrainingConfig::parse(SMALL_CONFIG, Path::new("configs/small.toml"))?,
             teacher_steps: 300,
             student_steps: 150,
-            eval_views: 25,
+            eval_views: 100,
         })
     }
 
