@@ -359,3 +359,68 @@ fn bad_input_is_one_clear_line() {
     let err = failure(prism(&["evaluate", "--pred", s(&pred), "--gt", s(&gt)]));
     assert!(err.contains("a.png"), "{err}");
 }
+
+/// A checkpoint whose config.toml is not the one its weights were trained with, and a PLY
+/// export from a model built without the 3DGS head: one clear line each, nothing written.
+#[test]
+fn another_config_and_a_missing_3dgs_head_are_one_clear_line() {
+    let (_, run_dir) = trained();
+    let dir = scratch("config");
+    // Copy the checkpoint, then give it a config of another width.
+    let checkpoint = prism_train::latest_checkpoint(run_dir).unwrap().unwrap();
+    let other = dir.join("other-config");
+    std::fs::create_dir_all(&other).unwrap();
+    for entry in std::fs::read_dir(&checkpoint).unwrap() {
+        let entry = entry.unwrap();
+        std::fs::copy(entry.path(), other.join(entry.file_name())).unwrap();
+    }
+    let mut config = tiny_config();
+    config.model.width = 32;
+    std::fs::write(other.join("config.toml"), config.to_toml()).unwrap();
+    let err = failure(prism(&["evaluate", "--checkpoint", s(&other)]));
+    assert!(err.contains("other-config"), "{err}");
+    let photo = dir.join("photo.png");
+    image::RgbImage::from_pixel(32, 32, image::Rgb([200, 10, 10]))
+        .save(&photo)
+        .unwrap();
+    let err = failure(prism(&[
+        "infer",
+        "--checkpoint",
+        s(&other),
+        "--image",
+        s(&photo),
+        "--out",
+        s(&dir.join("o")),
+    ]));
+    assert!(err.contains("other-config"), "{err}");
+
+    // A one-step teacher without the 3DGS head.
+    let mut no_gs = tiny_config();
+    no_gs.model.gs_head = false;
+    no_gs.losses.gs = 0.0;
+    no_gs.train.steps = 1;
+    no_gs.train.checkpoint_every = 1;
+    let run = dir.join("no-gs");
+    train(
+        &no_gs,
+        &TeacherTask {
+            lpips_weights: None,
+        },
+        &prism_train::RunOptions::new(&run, prism_data::BackendKind::Ndarray),
+    )
+    .unwrap();
+    let ply = dir.join("person.ply");
+    let err = failure(prism(&[
+        "infer",
+        "--checkpoint",
+        s(&run),
+        "--image",
+        s(&photo),
+        "--out",
+        s(&dir.join("views")),
+        "--export-ply",
+        s(&ply),
+    ]));
+    assert!(err.contains("3DGS head"), "{err}");
+    assert!(!ply.exists());
+}
