@@ -13,10 +13,9 @@ use prism_train::{
 /// teacher, distil the student, evaluate both on the held-out people and print PSNR, SSIM,
 /// LPIPS and FPS with the paths of the reports and sample images.
 ///
-/// The step counts are scaled down from the config's so the job fits 30 minutes (18 measured) on a
-/// 2-core CPU (flex): 300 teacher and 150 student steps, the protocol's 100 target views per
-/// test subject.
-/// --fast uses the tiny config (120 and 60 steps, 10 views): a few minutes.
+/// The step counts are scaled down from the config's so the job fits 30 minutes on a 2-core
+/// CPU (flex; 18 measured): 300 teacher and 150 student steps, the protocol's 100 target views
+/// per test subject. --fast uses the tiny config (120 and 60 steps, 10 views): about a minute.
 #[derive(Args, Debug)]
 pub struct QuickstartArgs {
     /// The tiny config and fewer steps: about a minute instead of about 18.
