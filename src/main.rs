@@ -44,6 +44,8 @@ enum Command {
     Evaluate(commands::evaluate::EvaluateArgs),
     /// Novel views of a person from one photo (a +-30 degree sweep as PNGs and a GIF).
     Infer(commands::infer::InferArgs),
+    /// The main job: dataset, teacher, student, evaluation of both, a table of the results.
+    Quickstart(commands::quickstart::QuickstartArgs),
 }
 
 fn main() {
@@ -59,6 +61,7 @@ fn main() {
         Command::DistillStudent(args) => args.run(),
         Command::Evaluate(args) => args.run(),
         Command::Infer(args) => args.run(),
+        Command::Quickstart(args) => args.run(),
     };
     if let Err(err) = result {
         eprintln!("error: {err:#}");

@@ -9,5 +9,6 @@ pub mod evaluate;
 pub mod infer;
 pub mod info;
 pub mod metrics;
+pub mod quickstart;
 pub mod splat;
 pub mod train;
