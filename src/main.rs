@@ -44,7 +44,7 @@ enum Command {
     Evaluate(commands::evaluate::EvaluateArgs),
     /// Novel views of a person from one photo (a +-30 degree sweep as PNGs and a GIF).
     Infer(commands::infer::InferArgs),
-    /// The whole pipeline on a fresh machine: data, teacher, student, evaluation, a table.
+    /// The main job: dataset, teacher, student, evaluation of both, a table of the results.
     Quickstart(commands::quickstart::QuickstartArgs),
 }
 

@@ -59,7 +59,7 @@ pub use parallel::{DataParallel, training_devices};
 pub use predict::{Pairs, forward_pairs, inference_model, synthesise};
 pub use quickstart::{
     QuickstartModel, QuickstartOptions, QuickstartPlan, QuickstartReport, StudentJob,
-    compress_schedule, distill_student, quickstart, quickstart_table,
+    compress_schedule, quickstart, quickstart_table,
 };
 pub use schedule::WarmupCosine;
 pub use step::{Prediction, StepLoss, StepValues, TRAINEE_FIELD, TrainItem, Trainee};

@@ -17,7 +17,6 @@ use crate::cache::ensure_synthetic_dataset;
 use crate::config::TrainingConfig;
 use crate::error::Result;
 use crate::evaluate::{EvaluateOptions, Evaluation, EvaluationFiles, evaluate_checkpoint};
-use crate::student::{StudentTask, student_config};
 use crate::teacher::TeacherTask;
 use crate::trainer::{RunOptions, RunSummary, train};
 
@@ -85,28 +84,6 @@ pub fn compress_schedule(config: &mut TrainingConfig, steps: usize) {
 /// The student job: distils a student from the teacher run `teacher` with `config`, into
 /// `options.out` (`options.steps` set). `prism distill-student`'s library call.
 pub type StudentJob<'a> = &'a dyn Fn(&TrainingConfig, &Path, &RunOptions) -> Result<RunSummary>;
-
-/// The real student job of `prism quickstart`, as `prism distill-student` runs it: the
-/// config's `[distill]` run ([`student_config`]) as a [`StudentTask`] on the frozen teacher
-/// run `teacher`, the student starting from the teacher's weights (`run.steps`, when set,
-/// overrides `[distill] steps`).
-///
-/// # Errors
-/// A `[distill]` section or teacher checkpoint that cannot be used, or a training error.
-pub fn distill_student(
-    config: &TrainingConfig,
-    teacher: &Path,
-    run: &RunOptions,
-) -> Result<RunSummary> {
-    let config = student_config(config);
-    let task = StudentTask::new(&config, teacher, run.lpips_weights.clone())?;
-    let run = RunOptions {
-        init: Some(task.teacher.clone()),
-        resume: false,
-        ..run.clone()
-    };
-    train(&config, &task, &run)
-}
 
 /// How a quickstart runs.
 #[derive(Clone, Debug)]
