@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use crate::progress::progress_bar;
 use prism_data::protocol::NUM_VIEWS;
 use prism_data::synth::synth_dataset;
 
@@ -56,18 +56,11 @@ pub fn synthetic_dataset_dir(data: &SyntheticDataConfig) -> PathBuf {
 pub fn ensure_synthetic_dataset(data: &SyntheticDataConfig, progress: bool) -> Result<PathBuf> {
     let dir = synthetic_dataset_dir(data);
     let options = data.synth_options();
-    let target = if progress {
-        ProgressDrawTarget::stderr()
-    } else {
-        ProgressDrawTarget::hidden()
-    };
-    let bar = ProgressBar::with_draw_target(Some((options.subjects * NUM_VIEWS) as u64), target)
-        .with_style(
-            ProgressStyle::with_template(
-                "synthesising the dataset [{bar:30}] {pos}/{len} views {msg} (ETA {eta})",
-            )
-            .expect("valid template"),
-        );
+    let bar = progress_bar(
+        progress,
+        (options.subjects * NUM_VIEWS) as u64,
+        "synthesising the dataset [{bar:30}] {pos}/{len} views {msg} (ETA {eta})",
+    );
     let summary = synth_dataset(&dir, &options, &|| bar.inc(1), &|name, skipped| {
         if skipped {
             bar.inc(NUM_VIEWS as u64);

@@ -12,7 +12,7 @@ use std::time::Instant;
 
 use burn::tensor::{Device, Tensor};
 use image::RgbImage;
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use indicatif::ProgressBar;
 use prism_data::BackendKind;
 use prism_data::dataset::{
     DatasetReader, PrismBatcher, Sample, SampleDataset, SplitKind, TargetSelection,
@@ -334,14 +334,10 @@ fn angle_bins(views: &[ViewScore], angle: impl Fn(&ViewScore) -> f32) -> Vec<Ang
 }
 
 fn progress_bar(show: bool, len: u64) -> ProgressBar {
-    let target = if show {
-        ProgressDrawTarget::stderr()
-    } else {
-        ProgressDrawTarget::hidden()
-    };
-    ProgressBar::with_draw_target(Some(len), target).with_style(
-        ProgressStyle::with_template("evaluating [{bar:30}] {pos}/{len} views {msg} (ETA {eta})")
-            .expect("valid template"),
+    crate::progress::progress_bar(
+        show,
+        len,
+        "evaluating [{bar:30}] {pos}/{len} views {msg} (ETA {eta})",
     )
 }
 

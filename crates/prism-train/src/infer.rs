@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 use burn::tensor::Device;
 use image::{DynamicImage, GrayImage, Rgb, Rgb32FImage, RgbImage, Rgba32FImage};
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use indicatif::ProgressBar;
 use prism_data::{BackendKind, Camera, Intrinsics, ViewAngles, ViewingProtocol};
 use prism_model::Prism;
 
@@ -494,14 +494,10 @@ fn rgb8(image: &Rgb32FImage) -> RgbImage {
 }
 
 fn progress_bar(show: bool, len: u64) -> ProgressBar {
-    let target = if show {
-        ProgressDrawTarget::stderr()
-    } else {
-        ProgressDrawTarget::hidden()
-    };
-    ProgressBar::with_draw_target(Some(len), target).with_style(
-        ProgressStyle::with_template("synthesising views [{bar:30}] {pos}/{len} (ETA {eta})")
-            .expect("valid template"),
+    crate::progress::progress_bar(
+        show,
+        len,
+        "synthesising views [{bar:30}] {pos}/{len} (ETA {eta})",
     )
 }
 

@@ -28,6 +28,7 @@ pub mod infer;
 pub mod log;
 pub mod parallel;
 pub mod predict;
+pub mod progress;
 pub mod quickstart;
 pub mod schedule;
 pub mod step;

@@ -13,7 +13,7 @@ use std::time::Instant;
 use burn::module::Module;
 use burn::optim::AdamWConfig;
 use burn::tensor::Device;
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use indicatif::ProgressBar;
 use prism_data::BackendKind;
 use prism_data::dataset::{
     DatasetReader, PrismBatcher, Sample, SampleDataset, SplitKind, TargetSelection,
@@ -530,17 +530,10 @@ fn step_line(step: usize, values: &StepValues, lr: f64, lr_heads: f64, grad_norm
 }
 
 fn progress_bar(enabled: bool, start: usize, total: usize, name: &str) -> ProgressBar {
-    let target = if enabled {
-        ProgressDrawTarget::stderr()
-    } else {
-        ProgressDrawTarget::hidden()
-    };
-    let bar = ProgressBar::with_draw_target(Some(total as u64), target);
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{prefix} {bar:30} {pos}/{len} [{elapsed_precise} < {eta_precise}, {per_sec}] {msg}",
-        )
-        .expect("valid template"),
+    let bar = crate::progress::progress_bar(
+        enabled,
+        total as u64,
+        "{prefix} {bar:30} {pos}/{len} [{elapsed_precise} < {eta_precise}, {per_sec}] {msg}",
     );
     bar.set_prefix(name.to_string());
     bar.set_position(start as u64);
