@@ -7,9 +7,7 @@ use anyhow::Context;
 use clap::Args;
 use prism_data::BackendKind;
 use prism_model::DistillMode;
-use prism_train::{
-    RunOptions, StudentTask, TrainingConfig, config_name, kinds_letters, student_config, train,
-};
+use prism_train::{RunOptions, TrainingConfig, config_name, distill_student, kinds_letters};
 
 /// Arguments of `prism distill-student`.
 #[derive(Args, Debug)]
@@ -60,19 +58,16 @@ impl DistillStudentArgs {
         if let Some(mode) = self.mode {
             config.distill.mode = mode;
         }
-        let config = student_config(&config);
         let mode = config.distill.mode;
         let out = self.out.clone().unwrap_or_else(|| {
             PathBuf::from("runs").join(format!("student-{}-{mode}", config_name(&self.config)))
         });
-        let task = StudentTask::new(&config, &self.teacher, self.lpips_weights.clone())
-            .with_context(|| format!("teacher {}", self.teacher.display()))?;
         let options = RunOptions {
             out: out.clone(),
             data: self.data,
             steps: self.steps,
             resume: self.resume,
-            init: (!self.resume).then(|| task.teacher.clone()),
+            init: None,
             backend: self.backend,
             devices: self.devices,
             progress: !self.quiet,
@@ -81,13 +76,18 @@ impl DistillStudentArgs {
         let blocks = config.model.num_blocks();
         println!(
             "distilling {} ({mode}): {} steps at lr {:.1e}, final attention {}",
-            task.teacher.display(),
+            self.teacher.display(),
             self.steps.unwrap_or(config.distill.steps),
             config.distill.lr,
             kinds_letters(&config.distill.final_kinds(blocks)),
         );
-        let summary = train(&config, &task, &options)
-            .with_context(|| format!("distilling into {}", out.display()))?;
+        let summary = distill_student(&config, &self.teacher, &options).with_context(|| {
+            format!(
+                "distilling {} into {}",
+                self.teacher.display(),
+                out.display()
+            )
+        })?;
         println!(
             "trained steps {}..{} on {} ({:.3} s per step)",
             summary.start_step,

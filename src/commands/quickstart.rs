@@ -1,13 +1,12 @@
 //! `prism quickstart`: the main job. Dataset, teacher, student, evaluation of both, a table.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::Args;
 use prism_data::BackendKind;
 use prism_train::{
-    QuickstartOptions, QuickstartPlan, RunOptions, RunSummary, StudentTask, TrainError,
-    TrainingConfig, quickstart, quickstart_table, student_config, train,
+    QuickstartOptions, QuickstartPlan, distill_student, quickstart, quickstart_table,
 };
 
 /// Run the whole pipeline on the small config: synthesise the default dataset, train the
@@ -88,25 +87,9 @@ impl QuickstartArgs {
             plan.eval_views,
             out.display()
         );
-        let report = quickstart(&plan, &options, &distil_student)
+        let report = quickstart(&plan, &options, &distill_student)
             .with_context(|| format!("quickstart into {}", out.display()))?;
         print!("{}", quickstart_table(&report));
         Ok(())
     }
-}
-
-/// The student job, as `prism distill-student` runs it: the student config (`[distill]`'s
-/// batch and fixed learning rate), starting from the teacher's weights.
-fn distil_student(
-    config: &TrainingConfig,
-    teacher: &Path,
-    options: &RunOptions,
-) -> Result<RunSummary, TrainError> {
-    let config = student_config(config);
-    let task = StudentTask::new(&config, teacher, options.lpips_weights.clone())?;
-    let options = RunOptions {
-        init: Some(task.teacher.clone()),
-        ..options.clone()
-    };
-    train(&config, &task, &options)
 }

@@ -64,7 +64,7 @@ pub use quickstart::{
 };
 pub use schedule::WarmupCosine;
 pub use step::{Prediction, StepLoss, StepValues, TRAINEE_FIELD, TrainItem, Trainee};
-pub use student::{StudentLoss, StudentTask, kinds_letters, student_config};
+pub use student::{StudentLoss, StudentTask, distill_student, kinds_letters, student_config};
 pub use teacher::{TeacherLoss, TeacherTask};
 pub use trainer::{RUN_CONFIG_FILE, RunOptions, RunSummary, SAMPLES_DIR, Task, TaskData, train};
 pub use validate::{ValidationScores, Validator, validation_views};

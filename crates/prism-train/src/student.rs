@@ -17,7 +17,7 @@ use crate::config::TrainingConfig;
 use crate::error::{Result, TrainError};
 use crate::step::StepLoss;
 use crate::teacher::TeacherLoss;
-use crate::trainer::{Task, TaskData};
+use crate::trainer::{RunOptions, RunSummary, Task, TaskData, train};
 
 /// The config a distillation run trains with: `config` with `[train]`'s run length, batch and
 /// learning rates taken from `[distill]` (`steps`, `batch_size`, and `lr` as a fixed rate for
@@ -86,6 +86,26 @@ impl StudentTask {
             .distill
             .kinds_at(step, self.config.model.num_blocks())
     }
+}
+
+/// The student job (`prism distill-student`, and the quick start's student): trains the student
+/// of `config` (through [`student_config`]) distilled from `teacher` (a run or checkpoint
+/// folder); a fresh run starts from the teacher's weights, `options.resume` continues the run.
+///
+/// # Errors
+/// As [`StudentTask::new`] and [`train`].
+pub fn distill_student(
+    config: &TrainingConfig,
+    teacher: &Path,
+    options: &RunOptions,
+) -> Result<RunSummary> {
+    let config = student_config(config);
+    let task = StudentTask::new(&config, teacher, options.lpips_weights.clone())?;
+    let options = RunOptions {
+        init: (!options.resume).then(|| task.teacher.clone()),
+        ..options.clone()
+    };
+    train(&config, &task, &options)
 }
 
 /// Letters of a list of kinds, `"LLFLLF"`.
