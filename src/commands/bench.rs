@@ -261,11 +261,11 @@ impl TableArgs {
         };
         let device = self.backend.device()?;
         device.seed(0);
+        // Serving renders the NVS decoder's image (the 3DGS head only where it is part of it).
         let mut model = config
             .try_init(&device)?
-            .with_block_precision(self.precision);
-        // Serving renders the NVS decoder's image; the 3DGS head only trains.
-        model.gs_head = None;
+            .with_block_precision(self.precision)
+            .without_training_heads();
         let n = model.num_blocks();
         let options = BenchOptions {
             warmup: self.warmup,

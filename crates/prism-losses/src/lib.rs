@@ -13,6 +13,7 @@ pub mod distill;
 pub mod error;
 pub mod lpips;
 pub mod objective;
+pub mod opacity;
 pub mod point;
 pub mod psnr;
 pub mod scoring;
@@ -24,8 +25,10 @@ pub use distill::{DistillInputs, distill_layers, distill_loss};
 pub use error::LossError;
 pub use lpips::{LPIPS_MIN_SIDE, Lpips};
 pub use objective::{
-    ImagePair, LossInputs, LossTerms, LossWeights, Objective, PointInputs, SmplxInputs, mse_loss,
+    ImagePair, LossInputs, LossTerms, LossWeights, Objective, OpacityInputs, PointInputs,
+    SmplxInputs, mse_loss,
 };
+pub use opacity::{mask_rows, opacity_loss};
 pub use point::{POINT_LOSS_SCALES, PointLoss, point_loss};
 pub use psnr::psnr;
 pub use scoring::{

@@ -1,12 +1,14 @@
 //! The training objective (paper Sec. 3.3):
 //! `L = l_nvs L_nvs + l_gs L_gs + l_pts L_pts + l_smplx L_smplx + l_distill L_distill`,
-//! with `L_nvs = MSE + l_lpips LPIPS` and `L_gs` alike.
+//! with `L_nvs = MSE + l_lpips LPIPS` and `L_gs` alike, plus, beyond the paper,
+//! `l_gs_opacity L_opacity` (see [`crate::opacity`]; 0 in the paper config).
 
 use burn::config::Config;
 use burn::tensor::Tensor;
 
 use crate::{
-    DistillInputs, LossError, Lpips, PointLoss, SmplxParams, distill_loss, point_loss, smplx_loss,
+    DistillInputs, LossError, Lpips, PointLoss, SmplxParams, distill_loss, opacity_loss,
+    point_loss, smplx_loss,
 };
 
 /// Weights of the objective: the `[losses]` section of the TOML configs. Defaults are the
@@ -34,6 +36,20 @@ pub struct LossWeights {
     /// `a`, weight of the confidence regulariser `-a log C` of `L_pts`.
     #[config(default = 0.2)]
     pub confidence_alpha: f64,
+    /// `l_gs_opacity`, weight of `L_opacity`, the 3DGS head's opacities against the source
+    /// mask (not in the paper: 0 there; see [`crate::opacity`]).
+    #[config(default = 0.0)]
+    pub gs_opacity: f64,
+}
+
+/// Inputs of `L_opacity` (see [`opacity_loss`]).
+#[derive(Clone, Debug)]
+pub struct OpacityInputs {
+    /// The 3DGS head's opacity logits, one row per source pixel, `[B, N, 1]`.
+    pub logits: Tensor<3>,
+    /// The source foreground mask in the same order, `[B, N, 1]` (see
+    /// [`crate::opacity::mask_rows`]).
+    pub mask: Tensor<3>,
 }
 
 /// A predicted image batch and its target, `[B, 3, H, W]` in [0, 1].
@@ -76,6 +92,8 @@ pub struct LossInputs {
     pub nvs: Option<ImagePair>,
     /// 3DGS head render and target view.
     pub gs: Option<ImagePair>,
+    /// 3DGS head opacities and the source mask.
+    pub gs_opacity: Option<OpacityInputs>,
     /// Point-branch prediction and targets.
     pub pts: Option<PointInputs>,
     /// SMPL-X branch prediction and fit.
@@ -102,6 +120,12 @@ impl LossInputs {
         self
     }
 
+    /// With the 3DGS head's opacity logits and the source mask.
+    pub fn with_gs_opacity(mut self, opacity: OpacityInputs) -> Self {
+        self.gs_opacity = Some(opacity);
+        self
+    }
+
     /// With the point branch's points and confidence and their targets.
     pub fn with_pts(mut self, pts: PointInputs) -> Self {
         self.pts = Some(pts);
@@ -123,8 +147,8 @@ impl LossInputs {
 
 /// The value of every computed term, unweighted, plus the weighted `total`, each `[1]`.
 ///
-/// Names: `nvs_mse`, `nvs_lpips`, `gs_mse`, `gs_lpips`, `pts`, `smplx`, `distill` (in this
-/// order, those computed only) and `total`.
+/// Names: `nvs_mse`, `nvs_lpips`, `gs_mse`, `gs_lpips`, `gs_opacity`, `pts`, `smplx`, `distill`
+/// (in this order, those computed only) and `total`.
 #[derive(Clone, Debug)]
 pub struct LossTerms {
     /// `L`, the weighted sum: what to call `backward` on.
@@ -195,7 +219,8 @@ impl Objective {
 
     /// Evaluates every term that has inputs and a nonzero weight, and the weighted total
     /// `L = l_nvs (MSE + l_lpips LPIPS)_nvs + l_gs (MSE + l_lpips LPIPS)_gs + l_pts L_pts +
-    /// l_smplx L_smplx + l_distill L_distill`. MSE and LPIPS are means over the batch.
+    /// l_smplx L_smplx + l_distill L_distill + l_gs_opacity L_opacity`. MSE and LPIPS are
+    /// means over the batch.
     ///
     /// # Errors
     /// [`LossError::NoTerms`] when nothing was computed.
@@ -227,6 +252,11 @@ impl Objective {
                 add(weight * w.lpips, &value);
                 terms.push((lpips_name, value));
             }
+        }
+        if let Some(o) = inputs.gs_opacity.filter(|_| w.gs_opacity != 0.0) {
+            let value = opacity_loss(o.logits, o.mask);
+            add(w.gs_opacity, &value);
+            terms.push(("gs_opacity", value));
         }
         if let Some(p) = inputs.pts.filter(|_| w.pts != 0.0) {
             let loss: PointLoss = point_loss(

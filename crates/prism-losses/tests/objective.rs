@@ -108,9 +108,10 @@ fn loss_weights_default_to_the_paper_and_round_trip_through_json() {
             w.smplx,
             w.distill,
             w.lpips,
-            w.confidence_alpha
+            w.confidence_alpha,
+            w.gs_opacity
         ),
-        (1.0, 1.0, 100.0, 1.0, 1.0, 1.0, 0.2)
+        (1.0, 1.0, 100.0, 1.0, 1.0, 1.0, 0.2, 0.0)
     );
     let json = serde_json::to_string(&w.clone().with_pts(50.0)).unwrap();
     let back: LossWeights = serde_json::from_str(&json).unwrap();

@@ -15,6 +15,8 @@ use serde::{Deserialize, Serialize, Serializer};
 use crate::attention::{AttentionKind, FeatureMap};
 use crate::distill::DistillConfig;
 use crate::error::ModelError;
+use crate::gaussian_head::{GsColour, GsDepth};
+use crate::head::NvsOutput;
 
 /// The attention kind of every transformer block, as written in a config file.
 ///
@@ -199,6 +201,27 @@ pub struct PrismConfig {
     /// zero-initialised convolution a zero gate never receives a gradient (see `injection.rs`).
     #[config(default = 1.0)]
     pub gate_init: f64,
+    /// The 3DGS head's colours: `"regressed"` (the paper) or `"source"`, the source pixel's
+    /// colour plus a learned correction (see `gaussian_head.rs`).
+    #[config(default = "GsColour::Regressed")]
+    pub gs_colour: GsColour,
+    /// The 3DGS head's distances: `"head"` (the paper) or `"points"`, the point branch's
+    /// distance (supervised by `L_pts`) plus a learned correction. `"points"` needs
+    /// `point_branch`.
+    #[config(default = "GsDepth::Head")]
+    pub gs_depth: GsDepth,
+    /// The 3DGS head's Gaussian scale at initialisation, in source-pixel footprints (paper 1;
+    /// strictly between 0.1 and 10).
+    #[config(default = 1.0)]
+    pub gs_scale: f64,
+    /// Start the 3DGS head's opacities from a key of the source image on the background colour
+    /// (background pixels transparent, the person opaque; see `gaussian_head.rs`).
+    #[config(default = false)]
+    pub gs_keying: bool,
+    /// The NVS decoder's output: `"direct"` (the paper: `sigmoid` of the regressed colours) or
+    /// `"residual"` (a correction of the 3DGS head's render `I_gs`; needs `gs_head`).
+    #[config(default = "NvsOutput::Direct")]
+    pub nvs_output: NvsOutput,
 }
 
 impl PrismConfig {
@@ -295,6 +318,24 @@ impl PrismConfig {
             return fail(
                 "model.gate_init",
                 format!("{} is not a number", self.gate_init),
+            );
+        }
+        if !(self.gs_scale > 0.1 && self.gs_scale < 10.0) {
+            return fail(
+                "model.gs_scale",
+                format!("{} is not strictly between 0.1 and 10", self.gs_scale),
+            );
+        }
+        if self.gs_depth == GsDepth::Points && !self.point_branch {
+            return fail(
+                "model.gs_depth",
+                "\"points\" takes the point branch's depth: set point_branch = true".into(),
+            );
+        }
+        if self.nvs_output == NvsOutput::Residual && !self.gs_head {
+            return fail(
+                "model.nvs_output",
+                "\"residual\" corrects the 3DGS head's render: set gs_head = true".into(),
             );
         }
         if self.smplx_branch {
@@ -420,6 +461,11 @@ point_width = 32
 point_features = 8
 depth_prior = 2.0
 gate_init = 1.0
+gs_colour = "regressed"
+gs_depth = "head"
+gs_scale = 1.0
+gs_keying = false
+nvs_output = "direct"
 
 [distill]
 mode = "progressive"

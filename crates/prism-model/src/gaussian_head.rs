@@ -14,6 +14,27 @@
 //! - opacity `sigmoid(x_o)` (the logit is what the renderer and the PLY format store);
 //! - colour `sigmoid(x_c)`, 3 channels in [0, 1].
 //!
+//! Two options make the head a geometric prediction from the first step, for training from
+//! scratch (pixel-aligned Gaussians that carry the source pixels, as GPS-Gaussian does):
+//!
+//! - `gs_colour = "source"`: the colour is the source pixel's, corrected by the head,
+//!   `c = clamp(I_s + x_c, 0, 1)`, instead of `sigmoid(x_c)`; `gs_colour = "flow"`: the
+//!   Gaussians splat their source pixel's coordinates instead of a colour, and `I_gs` samples
+//!   the source image there (appearance flow from forward splatting, see [`GsColour::Flow`]);
+//! - `gs_depth = "points"`: the distance is the point branch's (which `L_pts` supervises),
+//!   corrected by the head, `t = t_pts + x_t`, instead of the head's own.
+//!
+//! - `gs_keying = true`: the opacity starts from a key of the source on the background colour
+//!   (every image the model sees is composited on it, photos by `prism infer` too),
+//!   `o = sigmoid(logit(k) + x_o)` with `k = clamp(max_c |I_s - bg| / KEY_WIDTH, 0.01, 0.99)`:
+//!   background pixels start transparent, the person opaque, and the head learns the
+//!   exceptions (a white shirt on a white background) from `L_opacity` and the image losses.
+//!
+//! With either of the first two, the projection starts at zero, so that at initialisation the
+//! Gaussians are the source pixels at the point branch's depth. `gs_scale` sets their initial
+//! size in source-pixel footprints: the renderer adds 0.3 px^2 to every projected covariance,
+//! so 1 footprint is already a blur of about 1.1 px, right for features, too wide for colours.
+//!
 //! [`GaussianOutput::cloud`] turns the Gaussians of one pair into a standard 3DGS PLY
 //! ([`GaussianCloud`], degree-0 colours).
 
@@ -23,8 +44,10 @@ use burn::config::Config;
 use burn::module::Module;
 use burn::nn::{Initializer, LayerNorm, LayerNormConfig, Linear, LinearConfig};
 use burn::tensor::activation::{sigmoid, softplus};
+use burn::tensor::ops::{GridSampleOptions, GridSamplePaddingMode};
 use burn::tensor::{Device, Tensor, TensorData};
 use prism_render::splat::{GaussianCloud, Gaussians, background, render};
+use serde::{Deserialize, Serialize};
 
 use crate::error::ModelError;
 use crate::patch::unpatchify;
@@ -37,6 +60,12 @@ pub const GAUSSIAN_CHANNELS: usize = 12;
 pub const MIN_SCALE_PIXELS: f32 = 0.1;
 /// Largest scale, in source-pixel footprints.
 pub const MAX_SCALE_PIXELS: f32 = 10.0;
+/// Colour distance from the background (largest channel difference, in [0, 1]) at which the
+/// key of `gs_keying` is fully opaque.
+pub const KEY_WIDTH: f32 = 0.1;
+/// The key's range: opacities at initialisation stay within `[KEY_FLOOR, 1 - KEY_FLOOR]`, so
+/// that the learned correction can still move them.
+pub const KEY_FLOOR: f32 = 0.01;
 
 /// Configuration of a [`GaussianHead`].
 #[derive(Config, Debug)]
@@ -47,6 +76,19 @@ pub struct GaussianHeadConfig {
     pub patch_size: usize,
     /// Distance (metres) of the Gaussians at initialisation.
     pub depth_prior: f64,
+    /// Where the Gaussians' colours come from.
+    #[config(default = "GsColour::Regressed")]
+    pub colour: GsColour,
+    /// Where the Gaussians' distances come from.
+    #[config(default = "GsDepth::Head")]
+    pub depth: GsDepth,
+    /// Scale of the Gaussians at initialisation, in source-pixel footprints (between
+    /// [`MIN_SCALE_PIXELS`] and [`MAX_SCALE_PIXELS`], exclusive).
+    #[config(default = 1.0)]
+    pub scale: f64,
+    /// Start the opacities from the source's key on the background colour.
+    #[config(default = false)]
+    pub keying: bool,
     /// Standard deviation of the projection's normal initialisation.
     #[config(default = 0.02)]
     pub init_std: f64,
@@ -68,15 +110,78 @@ impl GaussianHeadConfig {
                 GAUSSIAN_CHANNELS * self.patch_size * self.patch_size,
             )
             .with_bias(false)
-            .with_initializer(Initializer::Normal {
-                mean: 0.0,
-                std: self.init_std,
+            .with_initializer(if self.is_geometric() {
+                Initializer::Zeros
+            } else {
+                Initializer::Normal {
+                    mean: 0.0,
+                    std: self.init_std,
+                }
             })
             .init(device),
             patch_size: self.patch_size,
             depth_prior: self.depth_prior as f32,
+            colour: self.colour,
+            depth: self.depth,
+            scale_logit: scale_logit(self.scale as f32),
+            keying: self.keying,
         }
     }
+
+    /// Whether the head starts from the source pixels (`colour` or `depth` taken from them):
+    /// then its projection starts at zero.
+    pub fn is_geometric(&self) -> bool {
+        self.colour != GsColour::Regressed || self.depth == GsDepth::Points || self.keying
+    }
+}
+
+/// Where the 3DGS head's Gaussians take their colour (`gs_colour` in `[model]`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum GsColour {
+    /// `sigmoid(x_c)`, regressed by the head (the paper).
+    #[default]
+    Regressed,
+    /// The source pixel's colour plus the head's correction, `clamp(I_s + x_c, 0, 1)`.
+    Source,
+    /// Appearance flow: the Gaussians carry their source pixel's coordinates; the rendered
+    /// coordinates (normalised by the coverage) sample the source image bilinearly, and
+    /// `I_gs = alpha * I_s(uv) + (1 - alpha) * bg`. Splatting blurs the flow, not the colours,
+    /// so `I_gs` keeps the source's sharpness. The Gaussians (and PLY) carry the source colours.
+    Flow,
+}
+
+/// Where the 3DGS head's Gaussians take their distance along the source ray (`gs_depth`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum GsDepth {
+    /// `softplus(x_t + softplus^-1(depth_prior))`, the head's own (the paper).
+    #[default]
+    Head,
+    /// The point branch's distance plus the head's correction, `t_pts + x_t` (needs the point
+    /// branch).
+    Points,
+}
+
+/// `logit(k)` of the key `k = clamp(max_c |I_s - bg| / KEY_WIDTH, KEY_FLOOR, 1 - KEY_FLOOR)` of
+/// a source image `[B, 3, H, W]` on the background colour: `[B, 1, H, W]`.
+pub fn key_logits(source_image: &Tensor<4>, background: &[f32]) -> Tensor<4> {
+    let device = source_image.device();
+    let bg = Tensor::<4>::from_data(TensorData::new(background.to_vec(), [1, 3, 1, 1]), &device);
+    let key = (source_image.clone() - bg)
+        .abs()
+        .max_dim(1)
+        .div_scalar(KEY_WIDTH)
+        .clamp(KEY_FLOOR, 1.0 - KEY_FLOOR);
+    (key.clone() / key.neg().add_scalar(1.0)).log()
+}
+
+/// The raw offset `x` with `sigmoid(x)` placing the log-scale at `scale` footprints within
+/// `[MIN_SCALE_PIXELS, MAX_SCALE_PIXELS]` (0 for one footprint).
+fn scale_logit(scale: f32) -> f32 {
+    let (lo, hi) = (MIN_SCALE_PIXELS.ln(), MAX_SCALE_PIXELS.ln());
+    let u = ((scale.ln() - lo) / (hi - lo)).clamp(1e-6, 1.0 - 1e-6);
+    (u / (1.0 - u)).ln()
 }
 
 /// The 3DGS head (see the module docs).
@@ -88,6 +193,14 @@ pub struct GaussianHead {
     pub linear: Linear,
     patch_size: usize,
     depth_prior: f32,
+    #[module(skip)]
+    colour: GsColour,
+    #[module(skip)]
+    depth: GsDepth,
+    #[module(skip)]
+    scale_logit: f32,
+    #[module(skip)]
+    keying: bool,
 }
 
 /// What the 3DGS head predicts for a batch of `B` pairs.
@@ -120,12 +233,29 @@ impl GaussianOutput {
 }
 
 impl GaussianHead {
-    /// The Gaussians of the source pixels from the source tokens of `T_out` `[B, T_s, d]` and
-    /// the source rays `[B, 6, H_s, W_s]`, rendered in the target views at `height x width`.
+    /// Where the colours come from.
+    pub fn colour(&self) -> GsColour {
+        self.colour
+    }
+
+    /// Where the distances come from.
+    pub fn depth(&self) -> GsDepth {
+        self.depth
+    }
+
+    /// The Gaussians of the source pixels from the source tokens of `T_out` `[B, T_s, d]`, the
+    /// source image `[B, 3, H_s, W_s]` (read with `gs_colour = "source"`), the source rays
+    /// `[B, 6, H_s, W_s]` and the point branch's distances `[B, 1, H_s, W_s]` (read with
+    /// `gs_depth = "points"`), rendered in the target views at `height x width`.
+    ///
+    /// # Panics
+    /// With `gs_depth = "points"` and no point distances.
     pub fn forward(
         &self,
         source_tokens: Tensor<3>,
+        source_image: &Tensor<4>,
         source_rays: &Tensor<4>,
+        point_distance: Option<Tensor<4>>,
         views: &Views,
         height: usize,
         width: usize,
@@ -140,16 +270,19 @@ impl GaussianHead {
         );
         let device = raw.device();
         let sources = views.source_at(ws, hs);
-        let distance = softplus(
-            raw.clone()
-                .narrow(1, 0, 1)
-                .add_scalar(inverse_softplus(self.depth_prior)),
-            1.0,
-        );
+        let x_t = raw.clone().narrow(1, 0, 1);
+        let distance = match self.depth {
+            GsDepth::Head => softplus(x_t.add_scalar(inverse_softplus(self.depth_prior)), 1.0),
+            GsDepth::Points => {
+                let base = point_distance.expect("gs_depth = \"points\" needs the point branch");
+                // Never behind the camera, whatever the correction.
+                (base + x_t).clamp_min(1e-3)
+            }
+        };
         let means = points_along_rays(source_rays, distance.clone(), &sources);
         let footprint = (distance / focals(&sources, &device)).log();
         let (lo, hi) = (MIN_SCALE_PIXELS.ln(), MAX_SCALE_PIXELS.ln());
-        let log_scales = sigmoid(raw.clone().narrow(1, 1, 3))
+        let log_scales = sigmoid(raw.clone().narrow(1, 1, 3).add_scalar(self.scale_logit))
             .mul_scalar(hi - lo)
             .add_scalar(lo)
             + footprint;
@@ -159,8 +292,17 @@ impl GaussianHead {
         );
         let q = raw.clone().narrow(1, 4, 4) + identity;
         let rotations = q.clone() / (q.clone() * q).sum_dim(1).add_scalar(1e-12).sqrt();
-        let opacity_logits = raw.clone().narrow(1, 8, 1);
-        let colours = sigmoid(raw.narrow(1, 9, 3));
+        let mut opacity_logits = raw.clone().narrow(1, 8, 1);
+        if self.keying {
+            opacity_logits = opacity_logits + key_logits(source_image, &views.background);
+        }
+        let x_c = raw.narrow(1, 9, 3);
+        let colours = match self.colour {
+            GsColour::Regressed => sigmoid(x_c),
+            GsColour::Source => (source_image.clone() + x_c).clamp(0.0, 1.0),
+            // The flow carries the colours; the Gaussians keep the source's for the PLY.
+            GsColour::Flow => source_image.clone(),
+        };
         let gaussians = Gaussians {
             means: pixel_rows(means),
             log_scales: pixel_rows(log_scales),
@@ -169,14 +311,49 @@ impl GaussianHead {
             features: pixel_rows(colours),
         };
         let targets = views.target_at(width, height);
-        let rendered = render(&gaussians, &targets).expect("Gaussians and target cameras fit");
-        let image = rendered.over(background(&views.background, &device));
+        let bg = background(&views.background, &device);
+        let (image, alpha) = if self.colour == GsColour::Flow {
+            let coordinates = Gaussians {
+                features: pixel_rows(source_coordinates(source_image)),
+                ..gaussians.clone()
+            };
+            let rendered = render(&coordinates, &targets).expect("Gaussians and cameras fit");
+            let alpha = rendered.alpha.clone();
+            let grid =
+                (rendered.features / alpha.clone().clamp_min(FLOW_ALPHA_EPS)).permute([0, 2, 3, 1]);
+            let sampled = source_image.clone().grid_sample_2d(
+                grid,
+                GridSampleOptions::default().with_padding_mode(GridSamplePaddingMode::Border),
+            );
+            let [c] = bg.dims();
+            let bg = bg.reshape([1, c, 1, 1]);
+            let image = sampled * alpha.clone() + (alpha.clone().neg().add_scalar(1.0)) * bg;
+            (image, alpha)
+        } else {
+            let rendered = render(&gaussians, &targets).expect("Gaussians and cameras fit");
+            (rendered.over(bg), rendered.alpha)
+        };
         GaussianOutput {
             gaussians,
             image,
-            alpha: rendered.alpha,
+            alpha,
         }
     }
+}
+
+/// Coverage under which a target pixel's splatted source coordinates are not normalised by
+/// it (they are near zero there, and so is their weight in `I_gs`).
+const FLOW_ALPHA_EPS: f32 = 1e-4;
+
+/// Each source pixel's own centre in the normalised coordinates of `grid_sample`
+/// (`align_corners = false`: `2 (x + 1/2) / W - 1`), `[B, 2, H, W]` (x then y), on the device
+/// and with the batch size of `like` `[B, _, H, W]`.
+fn source_coordinates(like: &Tensor<4>) -> Tensor<4> {
+    let [b, _, h, w] = like.dims();
+    let mut data = Vec::with_capacity(2 * h * w);
+    data.extend((0..h * w).map(|i| (2 * (i % w) + 1) as f32 / w as f32 - 1.0));
+    data.extend((0..h * w).map(|i| (2 * (i / w) + 1) as f32 / h as f32 - 1.0));
+    Tensor::<4>::from_data(TensorData::new(data, [1, 2, h, w]), &like.device()).expand([b, 2, h, w])
 }
 
 #[cfg(test)]
@@ -207,7 +384,8 @@ mod tests {
         );
         let rays = plucker_rays(&views.source, &device);
         let tokens = Tensor::<3>::random([2, 6, 16], Distribution::Normal(0.0, 1.0), &device);
-        let out = head.forward(tokens, &rays, &views, 16, 24);
+        let image = Tensor::<4>::zeros([2, 3, 16, 24], &device);
+        let out = head.forward(tokens, &image, &rays, None, &views, 16, 24);
         assert_eq!(out.image.dims(), [2, 3, 16, 24]);
         assert_eq!(out.alpha.dims(), [2, 1, 16, 24]);
         assert_eq!(out.gaussians.means.dims(), [2, 16 * 24, 3]);
@@ -268,12 +446,134 @@ mod tests {
         let rays = plucker_rays(&views.source, &device);
         let tokens = Tensor::<3>::random([1, 4, 16], Distribution::Normal(0.0, 1.0), &device);
         let target = Tensor::<4>::random([1, 3, 16, 16], Distribution::Uniform(0.0, 1.0), &device);
-        let out = head.forward(tokens, &rays, &views, 16, 16);
+        let image = Tensor::<4>::zeros([1, 3, 16, 16], &device);
+        let out = head.forward(tokens, &image, &rays, None, &views, 16, 16);
         let grads = (out.image - target).powi_scalar(2).mean().backward();
         let g = values(&head.linear.weight.val().grad(&grads).unwrap());
         assert!(g.iter().all(|v| v.is_finite()) && g.iter().any(|&v| v != 0.0));
         let g = values(&head.norm.gamma.val().grad(&grads).unwrap());
         assert!(g.iter().any(|&v| v != 0.0));
+    }
+
+    #[test]
+    fn geometric_head_starts_at_the_source_pixels_on_the_point_depths() {
+        let device = ndarray().autodiff();
+        device.seed(6);
+        let head = GaussianHeadConfig::new(16, 8, 2.0)
+            .with_colour(GsColour::Source)
+            .with_depth(GsDepth::Points)
+            .with_scale(0.3)
+            .init(&device);
+        let views = views(1, 16, 16);
+        let rays = plucker_rays(&views.source, &device);
+        let tokens = Tensor::<3>::random([1, 4, 16], Distribution::Normal(0.0, 1.0), &device);
+        let image = Tensor::<4>::random([1, 3, 16, 16], Distribution::Uniform(0.0, 1.0), &device);
+        let distance =
+            Tensor::<4>::random([1, 1, 16, 16], Distribution::Uniform(1.5, 2.5), &device)
+                .require_grad();
+        let out = head.forward(
+            tokens,
+            &image,
+            &rays,
+            Some(distance.clone()),
+            &views,
+            16,
+            16,
+        );
+        // Colours are the source pixels, row-major.
+        let colours = values(&out.gaussians.features);
+        let source = values(&image);
+        for i in 0..256 {
+            for c in 0..3 {
+                assert_eq!(colours[i * 3 + c], source[c * 256 + i]);
+            }
+        }
+        // Centres sit at the given distances along the rays, opacity 1/2, 0.3 footprints wide.
+        let camera = views.source[0];
+        let d = values(&distance);
+        for (i, m) in values(&out.gaussians.means).chunks_exact(3).enumerate() {
+            let p = glam::Vec3::from_slice(m);
+            assert!(((p - camera.center()).length() - d[i]).abs() < 1e-4);
+        }
+        assert!(
+            values(&out.gaussians.opacity_logits)
+                .iter()
+                .all(|&x| x == 0.0)
+        );
+        let f = camera.intrinsics.fx;
+        for (i, s) in values(&out.gaussians.log_scales).iter().enumerate() {
+            let want = (0.3 * d[i / 3] / f).ln();
+            assert!((s - want).abs() < 1e-4, "{s} vs {want}");
+        }
+        // The image loss reaches the depths and the head.
+        let target = Tensor::<4>::random([1, 3, 16, 16], Distribution::Uniform(0.0, 1.0), &device);
+        let grads = (out.image - target).powi_scalar(2).mean().backward();
+        assert!(
+            values(&distance.grad(&grads).unwrap())
+                .iter()
+                .any(|&g| g != 0.0)
+        );
+        assert!(
+            values(&head.linear.weight.val().grad(&grads).unwrap())
+                .iter()
+                .any(|&g| g != 0.0)
+        );
+    }
+
+    #[test]
+    fn flow_render_gives_back_the_source_in_its_own_camera_and_keys_the_background() {
+        let device = ndarray().autodiff();
+        device.seed(8);
+        let head = GaussianHeadConfig::new(16, 8, 2.0)
+            .with_colour(GsColour::Flow)
+            .with_scale(0.3)
+            .with_keying(true)
+            .init(&device);
+        let (h, w) = (24, 24);
+        let mut views = views(1, h, w);
+        views.background = [1.0, 1.0, 1.0];
+        views.target = views.source.clone();
+        // A dark smooth square person on the white background.
+        let mut data = vec![1.0f32; 3 * h * w];
+        for y in 4..20 {
+            for x in 4..20 {
+                for c in 0..3 {
+                    data[c * h * w + y * w + x] = 0.1 + 0.02 * x as f32 + 0.01 * (y + c) as f32;
+                }
+            }
+        }
+        let image = Tensor::<4>::from_data(TensorData::new(data.clone(), [1, 3, h, w]), &device);
+        // The key: opaque on the person, transparent on the background.
+        let key = sigmoid(key_logits(&image, &views.background));
+        let key = values(&key);
+        assert!((key[10 * w + 10] - (1.0 - KEY_FLOOR)).abs() < 1e-5);
+        assert!((key[0] - KEY_FLOOR).abs() < 1e-5);
+        let rays = plucker_rays(&views.source, &device);
+        let tokens = Tensor::<3>::random([1, 9, 16], Distribution::Normal(0.0, 1.0), &device);
+        let out = head.forward(tokens, &image, &rays, None, &views, h, w);
+        let got = values(&out.image);
+        for y in 0..h {
+            for x in 0..w {
+                let inside = (6..18).contains(&x) && (6..18).contains(&y);
+                let outside = !(2..22).contains(&x) || !(2..22).contains(&y);
+                for c in 0..3 {
+                    let i = c * h * w + y * w + x;
+                    if inside || outside {
+                        assert!(
+                            (got[i] - data[i]).abs() < 0.02,
+                            "({x}, {y}, {c}): {} vs {}",
+                            got[i],
+                            data[i]
+                        );
+                    }
+                }
+            }
+        }
+        // The image loss moves the Gaussians (through the sampled coordinates).
+        let target = Tensor::<4>::random([1, 3, h, w], Distribution::Uniform(0.0, 1.0), &device);
+        let grads = (out.image - target).powi_scalar(2).mean().backward();
+        let g = values(&head.linear.weight.val().grad(&grads).unwrap());
+        assert!(g.iter().all(|v| v.is_finite()) && g.iter().any(|&v| v != 0.0));
     }
 
     #[test]
@@ -284,7 +584,8 @@ mod tests {
         let views = views(2, 8, 8);
         let rays = plucker_rays(&views.source, &device);
         let tokens = Tensor::<3>::random([2, 1, 16], Distribution::Normal(0.0, 1.0), &device);
-        let out = head.forward(tokens, &rays, &views, 8, 8);
+        let image = Tensor::<4>::zeros([2, 3, 8, 8], &device);
+        let out = head.forward(tokens, &image, &rays, None, &views, 8, 8);
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("pair1.ply");
         out.save_ply(1, &path).unwrap();

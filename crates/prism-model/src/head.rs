@@ -1,4 +1,12 @@
 //! The NVS decoder (paper Sec. 3.1-3.2): target tokens to the target image.
+//!
+//! With `nvs_output = "direct"` (the paper) the decoder regresses the colours,
+//! `I_t = sigmoid(Linear_out(LN(y)))`. With `nvs_output = "residual"` it corrects the 3DGS
+//! head's render, `I_t = clamp(I_gs + Linear_out(LN(y)), 0, 1)`, with `Linear_out` starting at
+//! zero: from scratch, regressing every pixel is far slower to learn than moving the source's
+//! pixels with a depth and fixing what that misses (disocclusions, shading). The clamp passes
+//! gradients wherever the result is inside (0, 1), so holes where `I_gs` shows the background
+//! are filled through it.
 
 use burn::config::Config;
 use burn::module::Module;
@@ -6,7 +14,20 @@ use burn::nn::{Initializer, LayerNorm, LayerNormConfig, Linear, LinearConfig};
 use burn::tensor::activation::sigmoid;
 use burn::tensor::{Device, Tensor};
 
+use serde::{Deserialize, Serialize};
+
 use crate::patch::unpatchify;
+
+/// What the NVS decoder predicts (`nvs_output` in `[model]`; see the module docs).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum NvsOutput {
+    /// The colours, through a sigmoid (the paper).
+    #[default]
+    Direct,
+    /// A correction of the 3DGS head's render (needs the 3DGS head).
+    Residual,
+}
 
 /// Configuration of an [`NvsHead`].
 #[derive(Config, Debug)]
@@ -21,6 +42,9 @@ pub struct NvsHeadConfig {
     /// `eps` of the LayerNorm.
     #[config(default = 1e-5)]
     pub norm_eps: f64,
+    /// What the decoder predicts.
+    #[config(default = "NvsOutput::Direct")]
+    pub output: NvsOutput,
 }
 
 impl NvsHeadConfig {
@@ -33,17 +57,22 @@ impl NvsHeadConfig {
                 .init(device),
             linear: LinearConfig::new(self.width, 3 * self.patch_size * self.patch_size)
                 .with_bias(false)
-                .with_initializer(Initializer::Normal {
-                    mean: 0.0,
-                    std: self.init_std,
+                .with_initializer(match self.output {
+                    NvsOutput::Direct => Initializer::Normal {
+                        mean: 0.0,
+                        std: self.init_std,
+                    },
+                    NvsOutput::Residual => Initializer::Zeros,
                 })
                 .init(device),
             patch_size: self.patch_size,
+            output: self.output,
         }
     }
 }
 
-/// The NVS decoder: `I_t = unpatchify(sigmoid(Linear_out(LN(y))))` on the target tokens `y`.
+/// The NVS decoder: `I_t = unpatchify(sigmoid(Linear_out(LN(y))))` on the target tokens `y`,
+/// or `clamp(I_gs + unpatchify(Linear_out(LN(y))), 0, 1)` (see the module docs).
 #[derive(Module, Debug)]
 pub struct NvsHead {
     /// LayerNorm (no bias) on the target tokens.
@@ -51,12 +80,64 @@ pub struct NvsHead {
     /// `Linear_out`: width `d` to `3 p^2` colour values per patch, no bias.
     pub linear: Linear,
     patch_size: usize,
+    #[module(skip)]
+    output: NvsOutput,
 }
 
 impl NvsHead {
-    /// The target image `[B, 3, H, W]` in (0, 1) from the target tokens `[B, (H/p)(W/p), d]`.
-    pub fn forward(&self, target_tokens: Tensor<3>, height: usize, width: usize) -> Tensor<4> {
-        let patches = sigmoid(self.linear.forward(self.norm.forward(target_tokens)));
-        unpatchify(patches, 3, height, width, self.patch_size)
+    /// What the decoder predicts.
+    pub fn output(&self) -> NvsOutput {
+        self.output
+    }
+
+    /// The target image `[B, 3, H, W]` in [0, 1] from the target tokens `[B, (H/p)(W/p), d]`
+    /// and, for `nvs_output = "residual"`, the 3DGS render `I_gs` `[B, 3, H, W]`.
+    ///
+    /// # Panics
+    /// With `nvs_output = "residual"` and no render.
+    pub fn forward(
+        &self,
+        target_tokens: Tensor<3>,
+        height: usize,
+        width: usize,
+        render: Option<Tensor<4>>,
+    ) -> Tensor<4> {
+        let patches = self.linear.forward(self.norm.forward(target_tokens));
+        match self.output {
+            NvsOutput::Direct => unpatchify(sigmoid(patches), 3, height, width, self.patch_size),
+            NvsOutput::Residual => {
+                let render = render.expect("nvs_output = \"residual\" needs the 3DGS head");
+                (render + unpatchify(patches, 3, height, width, self.patch_size)).clamp(0.0, 1.0)
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::test_util::{ndarray, values};
+    use burn::tensor::Distribution;
+
+    #[test]
+    fn residual_decoder_starts_at_the_render_and_learns_a_correction() {
+        let device = ndarray().autodiff();
+        device.seed(2);
+        let head = NvsHeadConfig::new(16, 4)
+            .with_output(NvsOutput::Residual)
+            .init(&device);
+        let tokens = Tensor::<3>::random([2, 4, 16], Distribution::Normal(0.0, 1.0), &device);
+        let render = Tensor::<4>::random([2, 3, 8, 8], Distribution::Uniform(0.0, 1.0), &device);
+        let out = head.forward(tokens.clone(), 8, 8, Some(render.clone()));
+        assert_eq!(values(&out), values(&render));
+        let grads = out.sub_scalar(0.5).powi_scalar(2).mean().backward();
+        let g = values(&head.linear.weight.val().grad(&grads).unwrap());
+        assert!(g.iter().any(|&v| v != 0.0));
+        // The paper's decoder ignores the render and regresses through a sigmoid.
+        let direct = NvsHeadConfig::new(16, 4).init(&device);
+        let a = direct.forward(tokens.clone(), 8, 8, None);
+        let b = direct.forward(tokens, 8, 8, Some(render));
+        assert_eq!(values(&a), values(&b));
+        assert!(values(&a).iter().all(|&v| v > 0.0 && v < 1.0));
     }
 }

@@ -88,6 +88,9 @@ pub struct PointBranch {
 pub struct PointOutput {
     /// World point per source pixel, `[B, 3, H_s, W_s]`.
     pub points: Tensor<4>,
+    /// Distance of each point along its source pixel's unit ray (metres), `[B, 1, H_s, W_s]`
+    /// (what a 3DGS head with `gs_depth = "points"` starts from).
+    pub distance: Tensor<4>,
     /// Confidence `C = 1 + exp(x) > 1` per source pixel, `[B, 1, H_s, W_s]`.
     pub confidence: Tensor<4>,
     /// The points' Gaussians (features: the `F` learned channels).
@@ -150,6 +153,7 @@ impl PointBranch {
         let points = points_along_rays(source_rays, distance.clone(), &sources);
 
         let device = points.device();
+        let distance_map = distance.clone();
         let log_scale = (distance / focals(&sources, &device)).log();
         let n = hs * ws;
         let gaussians = Gaussians {
@@ -169,6 +173,7 @@ impl PointBranch {
         let features = Tensor::cat(vec![rendered.features, rendered.alpha, offset], 1);
         PointOutput {
             points,
+            distance: distance_map,
             confidence,
             gaussians,
             features,

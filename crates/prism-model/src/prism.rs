@@ -103,11 +103,16 @@ impl PrismConfig {
             nvs_head: NvsHeadConfig::new(self.width, self.patch_size)
                 .with_init_std(self.init_std)
                 .with_norm_eps(self.norm_eps)
+                .with_output(self.nvs_output)
                 .init(device),
             gs_head: self.gs_head.then(|| {
                 GaussianHeadConfig::new(self.width, self.patch_size, self.depth_prior)
                     .with_init_std(self.init_std)
                     .with_norm_eps(self.norm_eps)
+                    .with_colour(self.gs_colour)
+                    .with_depth(self.gs_depth)
+                    .with_scale(self.gs_scale)
+                    .with_keying(self.gs_keying)
                     .init(device)
             }),
         })
@@ -216,6 +221,16 @@ impl Prism {
         for (block, &kind) in self.blocks_mut().zip(kinds) {
             block.set_attention(kind);
         }
+    }
+
+    /// The model for inference: without the 3DGS head, a training signal that the forward
+    /// pass then skips, unless the NVS decoder corrects its render (`nvs_output =
+    /// "residual"`), in which case it is part of the prediction and stays.
+    pub fn without_training_heads(mut self) -> Self {
+        if self.nvs_head.output() != crate::head::NvsOutput::Residual {
+            self.gs_head = None;
+        }
+        self
     }
 
     /// Whether a geometry part (SMPL-X branch, point branch or 3DGS head) is built: then the
@@ -339,7 +354,7 @@ impl Prism {
         let mut hidden = HiddenStates::new(&wanted);
         let t_in = self
             .tokenizer
-            .forward(source_image, source_rays.clone(), target_rays);
+            .forward(source_image.clone(), source_rays.clone(), target_rays);
         let t_mid = self.stage_one.forward(t_in.clone(), &mut hidden);
         let tapped: Vec<Tensor<3>> = taps
             .iter()
@@ -383,18 +398,25 @@ impl Prism {
         let target = t_out
             .clone()
             .narrow(1, source_tokens, total - source_tokens);
-        let image = self.nvs_head.forward(target, height, width);
-        let mut hidden = hidden.into_vec();
-        hidden.truncate(hidden_layers.len());
         let gaussians = self.gs_head.as_ref().map(|head| {
             head.forward(
                 source_of(&t_out),
+                &source_image,
                 &source_rays,
+                points.as_ref().map(|p| p.distance.clone()),
                 views.expect("checked"),
                 height,
                 width,
             )
         });
+        let image = self.nvs_head.forward(
+            target,
+            height,
+            width,
+            gaussians.as_ref().map(|g| g.image.clone()),
+        );
+        let mut hidden = hidden.into_vec();
+        hidden.truncate(hidden_layers.len());
         PrismOutput {
             image,
             hidden,
@@ -628,7 +650,7 @@ mod tests {
         let t_out = model.stage_three.forward(t_mid, 2, &mut hidden);
         let plain = model
             .nvs_head
-            .forward(t_out.clone().narrow(1, 16, 16), 32, 32);
+            .forward(t_out.clone().narrow(1, 16, 16), 32, 32, None);
         let bits = |t: &Tensor<4>| values(t).iter().map(|v| v.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&out.image), bits(&plain));
         assert_eq!(

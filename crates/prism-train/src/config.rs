@@ -182,6 +182,7 @@ impl TrainingConfig {
             ("losses.distill", l.distill),
             ("losses.lpips", l.lpips),
             ("losses.confidence_alpha", l.confidence_alpha),
+            ("losses.gs_opacity", l.gs_opacity),
         ] {
             if !(value.is_finite() && value >= 0.0) {
                 return fail(field, format!("{value} is not a non-negative number"));

@@ -91,6 +91,7 @@ mod tests {
             .autodiff();
         let trainee = Trainee {
             prism: config.init(&device),
+            background: [1.0; 3],
         };
         let x = Tensor::<4>::random([1, 3, 16, 16], Distribution::Uniform(0.0, 1.0), &device);
         let rays = Tensor::<4>::random([1, 6, 16, 16], Distribution::Normal(0.0, 1.0), &device);

@@ -126,9 +126,8 @@ pub fn synthesise(model: &Prism, pairs: &Pairs) -> Tensor<4> {
     forward_pairs(model, pairs).image.clamp(0.0, 1.0)
 }
 
-/// `model` without its 3DGS head: the NVS output alone, what evaluation times and serves.
+/// `model` as evaluation times and serves it: the NVS output alone (see
+/// [`Prism::without_training_heads`]).
 pub fn inference_model(model: &Prism) -> Prism {
-    let mut model = model.clone();
-    model.gs_head = None;
-    model
+    model.clone().without_training_heads()
 }

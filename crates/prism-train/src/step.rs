@@ -22,6 +22,9 @@ pub const TRAINEE_FIELD: &str = "prism";
 pub struct Trainee {
     /// The model being trained.
     pub prism: Prism,
+    /// The dataset's background colour (what the 3DGS head composites over).
+    #[module(skip)]
+    pub background: [f32; 3],
 }
 
 /// The objective of one step on one device's share of a batch.
@@ -131,12 +134,11 @@ impl InferenceStep for Trainee {
     type Input = PrismBatch;
     type Output = Prediction;
 
-    /// The NVS decoder's images of the batch's target views. The 3DGS head (a training signal,
-    /// the only part that reads the background) is skipped, so no background is needed.
+    /// The NVS decoder's images of the batch's target views (the 3DGS head, a training signal,
+    /// is skipped unless the decoder corrects its render).
     fn step(&self, batch: PrismBatch) -> Prediction {
-        let mut model = self.prism.clone();
-        model.gs_head = None;
-        let out = model.forward_batch(&batch, [0.0; 3], &[]);
+        let model = self.prism.clone().without_training_heads();
+        let out = model.forward_batch(&batch, self.background, &[]);
         Prediction { image: out.image }
     }
 }

@@ -7,7 +7,8 @@ use std::sync::Arc;
 use burn::tensor::Device;
 use prism_data::dataset::PrismBatch;
 use prism_losses::{
-    LossInputs, LossTerms, Lpips, Objective, PointInputs, SmplxInputs, SmplxParams,
+    LossInputs, LossTerms, Lpips, Objective, OpacityInputs, PointInputs, SmplxInputs, SmplxParams,
+    mask_rows,
 };
 use prism_model::{Prism, PrismOutput};
 
@@ -77,7 +78,12 @@ impl TeacherLoss {
         let target = batch.target_image.clone();
         let mut inputs = LossInputs::new().with_nvs(out.image.clone(), target.clone());
         if let Some(gaussians) = &out.gaussians {
-            inputs = inputs.with_gs(gaussians.image.clone(), target);
+            inputs = inputs
+                .with_gs(gaussians.image.clone(), target)
+                .with_gs_opacity(OpacityInputs {
+                    logits: gaussians.gaussians.opacity_logits.clone(),
+                    mask: mask_rows(batch.source_mask.clone()),
+                });
         }
         if let Some(points) = &out.points {
             inputs = inputs.with_pts(PointInputs {

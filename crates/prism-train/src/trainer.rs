@@ -210,7 +210,10 @@ pub fn train(config: &TrainingConfig, task: &dyn Task, options: &RunOptions) -> 
             ),
         });
     }
-    let mut trainee = Trainee { prism };
+    let mut trainee = Trainee {
+        prism,
+        background: reader.meta().background,
+    };
     let mut optimizer = AdamWConfig::new()
         .with_beta_1(ADAM_BETA_1)
         .with_beta_2(ADAM_BETA_2)

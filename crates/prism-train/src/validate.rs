@@ -102,9 +102,8 @@ impl Validator {
     /// Scores `model` (an inference model on the validator's device) on every held-out view;
     /// also returns the sample grid (source, prediction, ground truth per row).
     pub fn validate(&self, model: &Prism) -> (ValidationScores, RgbImage) {
-        // The 3DGS head is a training signal: the validated image is the NVS decoder's.
-        let mut model = model.clone();
-        model.gs_head = None;
+        // The validated image is the NVS decoder's.
+        let model = model.clone().without_training_heads();
         let mut grid_rows = Vec::new();
         let scores = self.score(
             |batch| model.forward_batch(batch, self.background, &[]).image,
