@@ -344,6 +344,21 @@ impl PrismConfig {
         self.attention_kinds().map(|_| ())
     }
 
+    /// This config with the paper's output parameterisation: the 3DGS head regresses colours
+    /// and depths at a one-pixel scale without keying, and the NVS decoder regresses colours
+    /// (`gs_colour = "regressed"`, `gs_depth = "head"`, `gs_scale = 1`, `gs_keying = false`,
+    /// `nvs_output = "direct"`).
+    pub fn paper_outputs(self) -> Self {
+        Self {
+            gs_colour: GsColour::Regressed,
+            gs_depth: GsDepth::Head,
+            gs_scale: 1.0,
+            gs_keying: false,
+            nvs_output: NvsOutput::Direct,
+            ..self
+        }
+    }
+
     /// Whether any geometry part (SMPL-X branch, point branch, 3DGS head) is enabled: then the
     /// forward pass needs the cameras ([`crate::Prism::forward_views`]).
     pub fn has_geometry(&self) -> bool {

@@ -440,9 +440,63 @@ mod tests {
     use burn::tensor::Gradients;
     use std::path::Path;
 
+    /// A shipped config's model with the paper's output parameterisation (what these tests
+    /// check); the shipped geometric outputs have their own test.
     fn config(name: &str) -> PrismConfig {
+        shipped(name).paper_outputs()
+    }
+
+    fn shipped(name: &str) -> PrismConfig {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../../configs/{name}.toml"));
         load_config(path).unwrap().model
+    }
+
+    #[test]
+    fn the_shipped_geometric_output_starts_as_the_source_moved_by_the_point_depths() {
+        let device = ndarray().autodiff();
+        device.seed(9);
+        let geometric = shipped("tiny");
+        assert_eq!(geometric.nvs_output, crate::head::NvsOutput::Residual);
+        let model = geometric.init(&device);
+        let x = inputs(2, 64, 64, &device);
+        let out = forward(&model, &x, &[]);
+        let gaussians = out
+            .gaussians
+            .clone()
+            .expect("the 3DGS head is part of the output");
+        // I_t = clamp(I_gs + 0) = I_gs at initialisation.
+        assert_eq!(values(&out.image), values(&gaussians.image));
+        // The Gaussians sit at the point branch's depths and carry the source's colours.
+        let points = out.points.clone().unwrap();
+        let rows = |t: Tensor<4>| values(&t.reshape([2, 3, 64 * 64]).swap_dims(1, 2));
+        let means = values(&gaussians.gaussians.means);
+        assert!(max_abs_diff(&means, &rows(points.points.clone())) < 1e-4);
+        let colours = values(&gaussians.gaussians.features);
+        assert!(max_abs_diff(&colours, &rows(x.0[0].clone())) < 1e-6);
+        // Serving keeps the 3DGS head: the NVS output needs it.
+        assert!(model.clone().without_training_heads().gs_head.is_some());
+        assert!(
+            config("tiny")
+                .init(&device)
+                .without_training_heads()
+                .gs_head
+                .is_none()
+        );
+        // The image loss reaches the backbone, the point branch and both heads.
+        let grads = out.image.sub_scalar(0.5).powi_scalar(2).mean().backward();
+        let nonzero = |t: Tensor<2>| values(&t.grad(&grads).unwrap()).iter().any(|&g| g != 0.0);
+        assert!(nonzero(model.nvs_head.linear.weight.val()));
+        assert!(nonzero(model.gs_head.as_ref().unwrap().linear.weight.val()));
+        assert!(nonzero(
+            model
+                .point_branch
+                .as_ref()
+                .unwrap()
+                .dpt
+                .head_out
+                .weight
+                .val()
+        ));
     }
 
     fn forward(model: &Prism, x: &([Tensor<4>; 3], Views), hidden: &[usize]) -> PrismOutput {

@@ -88,7 +88,10 @@ pub fn inputs(b: usize, h: usize, w: usize, device: &Device) -> ([Tensor<4>; 3],
 /// The tiny config with the geometry switches set.
 pub fn tiny_with(smplx: bool, points: bool, gs: bool) -> crate::PrismConfig {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/tiny.toml");
-    let mut config = crate::load_config(path).expect("tiny config").model;
+    let mut config = crate::load_config(path)
+        .expect("tiny config")
+        .model
+        .paper_outputs();
     config.smplx_branch = smplx;
     config.point_branch = points;
     config.gs_head = gs;

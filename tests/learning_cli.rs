@@ -1,0 +1,183 @@
+//! The shipped tiny config learns view synthesis, through the built binary: 200 teacher steps
+//! beat copying the source view on the held-out person, and `prism infer` on that person's
+//! frontal view turns them better than copying does, against ground-truth renders of the
+//! sweep's views. flex backend (the training the README recommends on a CPU).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use image::RgbImage;
+use prism_data::people::{self, PeopleConfig};
+use prism_data::synth::{BODY_MODEL_SEED, subject_name, subject_seed};
+use prism_data::{BodyModel, Intrinsics, RenderOptions, ViewingProtocol, render};
+use prism_train::infer::{Sweep, sweep_views, view_file_name};
+use prism_train::{TrainingConfig, configs_dir, read_metrics};
+
+/// A scratch folder for this test, removed first.
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("prism-learning-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn prism(cache: &Path, args: &[&str]) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_prism"))
+        .args(args)
+        .env(prism_train::CACHE_ENV, cache)
+        .env_remove("PRISM_LPIPS_WEIGHTS")
+        .output()
+        .unwrap();
+    let text = format!(
+        "{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(out.status.success(), "prism {args:?}:\n{text}");
+    text
+}
+
+/// PSNR of two 8-bit images (data range 1).
+fn psnr(a: &RgbImage, b: &RgbImage) -> f64 {
+    assert_eq!(a.dimensions(), b.dimensions());
+    let mse = a
+        .as_raw()
+        .iter()
+        .zip(b.as_raw())
+        .map(|(&x, &y)| ((x as f64 - y as f64) / 255.0).powi(2))
+        .sum::<f64>()
+        / a.as_raw().len() as f64;
+    10.0 * (1.0 / mse).log10()
+}
+
+/// The synthetic person `index` of the config's dataset, rendered in the protocol camera of
+/// `yaw` degrees (pitch 0), as the dataset would store it.
+fn ground_truth(config: &TrainingConfig, index: usize, yaw: f32) -> RgbImage {
+    let data = &config.data;
+    let seed = subject_seed(data.seed, index);
+    let model = BodyModel::procedural(BODY_MODEL_SEED);
+    let person =
+        people::generate_with(&model, seed, &PeopleConfig::for_resolution(data.resolution));
+    let protocol = ViewingProtocol::default();
+    let person = person.placed(&protocol.placement(seed));
+    let view = prism_data::ViewAngles {
+        index: 0,
+        yaw_deg: yaw,
+        pitch_deg: 0.0,
+    };
+    let camera = protocol.camera(
+        &view,
+        Intrinsics::protocol_default(data.resolution, data.resolution),
+    );
+    let options = RenderOptions {
+        supersample: data.supersample,
+        background: data.background,
+        ..Default::default()
+    };
+    let out = render(&person.mesh, &camera, &options).unwrap();
+    RgbImage::from_fn(out.width as u32, out.height as u32, |x, y| {
+        let c = out.rgb[out.index(x as usize, y as usize)];
+        image::Rgb(c.map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8))
+    })
+}
+
+#[test]
+fn the_tiny_teacher_beats_copying_the_source_and_turns_the_person() {
+    let dir = scratch("run");
+    let cache = dir.join("cache");
+    let run = dir.join("teacher");
+    let config_path = configs_dir().join("tiny.toml");
+    let config = TrainingConfig::load(&config_path).unwrap();
+    prism(
+        &cache,
+        &[
+            "train-teacher",
+            "--config",
+            config_path.to_str().unwrap(),
+            "--out",
+            run.to_str().unwrap(),
+            "--steps",
+            "200",
+            "--backend",
+            "flex",
+            "--quiet",
+        ],
+    );
+
+    // Validation on the held-out person: better than copying the source view.
+    let metrics = read_metrics(&run.join("metrics.jsonl")).unwrap();
+    let copy = metrics
+        .iter()
+        .find_map(|l| l["copy_source_psnr"].as_f64())
+        .unwrap();
+    let last = metrics
+        .iter()
+        .filter_map(|l| Some((l["step"].as_u64()?, l["val_psnr"].as_f64()?)))
+        .next_back()
+        .unwrap();
+    println!(
+        "validation at step {}: {:.3} dB, copy-source {copy:.3} dB",
+        last.0, last.1
+    );
+    assert_eq!(last.0, 200);
+    assert!(
+        last.1 > copy,
+        "validation {:.3} dB vs copy-source {copy:.3} dB",
+        last.1
+    );
+
+    // prism infer on the held-out person's frontal view (a square photo at the model's size, no
+    // mask: framed as it is), the yaw sweep to +-30 degrees, against renders of those views.
+    let held_out = config.data.subjects - 1;
+    let dataset = std::fs::read_dir(cache.join("datasets"))
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    let photo = dataset.join(subject_name(held_out)).join("rgb/000.png");
+    let views_dir = dir.join("views");
+    prism(
+        &cache,
+        &[
+            "infer",
+            "--checkpoint",
+            run.to_str().unwrap(),
+            "--image",
+            photo.to_str().unwrap(),
+            "--out",
+            views_dir.to_str().unwrap(),
+            "--sweep",
+            "yaw",
+            "--backend",
+            "flex",
+            "--quiet",
+        ],
+    );
+    let source = image::open(&photo).unwrap().to_rgb8();
+    let (mut model, mut copying) = (0.0, 0.0);
+    let views = sweep_views(Sweep::Yaw, 10.0, 30.0);
+    for view in &views {
+        let truth = ground_truth(&config, held_out, view.yaw_deg);
+        let predicted = image::open(views_dir.join(view_file_name(view)))
+            .unwrap()
+            .to_rgb8();
+        let (m, c) = (psnr(&predicted, &truth), psnr(&source, &truth));
+        println!(
+            "yaw {:+.0}: model {m:.3} dB, copy-source {c:.3} dB",
+            view.yaw_deg
+        );
+        model += m / views.len() as f64;
+        copying += c / views.len() as f64;
+    }
+    assert_eq!(views.first().unwrap().yaw_deg, -30.0);
+    assert_eq!(views.last().unwrap().yaw_deg, 30.0);
+    // The frontal view of the sweep is the photo itself: the ground truth is right.
+    assert!(psnr(&source, &ground_truth(&config, held_out, 0.0)) > 40.0);
+    println!("sweep mean: model {model:.3} dB, copy-source {copying:.3} dB");
+    assert!(
+        model > copying,
+        "model {model:.3} dB vs copy-source {copying:.3} dB"
+    );
+    let _ = std::fs::remove_dir_all(dir);
+}
