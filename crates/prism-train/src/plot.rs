@@ -55,6 +55,8 @@ const MODEL_COLOUR: RGBColor = RGBColor(31, 119, 180);
 /// Colour of the copy-the-source baseline.
 const BASELINE_COLOUR: RGBColor = RGBColor(214, 39, 40);
 
+/// Decades of the log scale of the loss terms below the largest value, at most.
+const LOG_DECADES: i32 = 6;
 /// Width of the legend beside the loss terms, pixels.
 const LOSS_LEGEND_WIDTH: u32 = 110;
 
@@ -256,12 +258,20 @@ fn losses_panel(
     if !lo.is_finite() {
         return empty_panel(area, "loss terms", "no training step logged yet");
     }
+    // A log scale unless a term is negative, spanning at most LOG_DECADES below the largest
+    // value: smaller values (a term that starts at 0, e.g. L_distill) are drawn at its floor.
+    let log = lo >= 0.0 && hi > 0.0;
+    let smallest = values().filter(|&v| v > 0.0).fold(f64::INFINITY, f64::min);
+    let floor = smallest.max(hi * 10f64.powi(-LOG_DECADES));
     let series: Vec<LossLine> = losses
         .iter()
         .zip(loss_styles(losses))
         .map(|((name, points), style)| LossLine {
             name: name.clone(),
-            points: thin(points),
+            points: thin(points)
+                .into_iter()
+                .map(|(x, v)| (x, if log { v.max(floor) } else { v }))
+                .collect(),
             style,
         })
         .collect();
@@ -273,10 +283,15 @@ fn losses_panel(
         b.margin(12).x_label_area_size(40).y_label_area_size(70);
         b
     };
-    if lo > 0.0 {
+    if log {
+        let caption = if lo < floor {
+            format!("loss terms (log scale; below {} drawn at it)", tick(floor))
+        } else {
+            "loss terms (log scale)".to_string()
+        };
         let chart = builder()
-            .caption("loss terms (log scale)", (FONT, 20))
-            .build_cartesian_2d(0.0..x_max, (lo * 0.8..hi * 1.25).log_scale())
+            .caption(caption, (FONT, 20))
+            .build_cartesian_2d(0.0..x_max, (floor * 0.8..hi * 1.25).log_scale())
             .map_err(|e| e.to_string())?;
         draw_lines(chart, &series)
     } else {
@@ -338,6 +353,7 @@ where
         .x_desc("step")
         .y_desc("loss")
         .x_label_formatter(&|x| format!("{x:.0}"))
+        .y_label_formatter(&|y| tick(*y))
         .label_style((FONT, 14))
         .axis_desc_style((FONT, 16))
         .draw()
@@ -428,6 +444,24 @@ fn empty_panel(area: &Panel<'_>, title: &str, note: &str) -> std::result::Result
         .map_err(|e| e.to_string())?;
     area.draw_text(note, &style, (w as i32 / 2, h as i32 / 2))
         .map_err(|e| e.to_string())
+}
+
+/// A tick label: up to 4 significant digits, scientific notation outside [1e-3, 1e4).
+fn tick(v: f64) -> String {
+    let a = v.abs();
+    if a == 0.0 {
+        return "0".into();
+    }
+    if !(1e-3..1e4).contains(&a) {
+        return format!("{v:.0e}");
+    }
+    let decimals = (3 - a.log10().floor() as i32).max(0) as usize;
+    let text = format!("{v:.decimals$}");
+    if text.contains('.') {
+        text.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        text
+    }
 }
 
 /// `[lo, hi]` widened by a tenth of its span on each side, the span at least `min_span`.
@@ -555,5 +589,15 @@ mod tests {
         let thinned = thin(&points);
         assert_eq!(thinned.len(), 834);
         assert_eq!(thinned[0], (1.0, 1.0));
+        let ticks: Vec<String> = [0.0, 1e-7, 0.002, 0.1, 0.25, 1.0, 12.5, 300.0, 1e5]
+            .into_iter()
+            .map(tick)
+            .collect();
+        assert_eq!(
+            ticks,
+            [
+                "0", "1e-7", "0.002", "0.1", "0.25", "1", "12.5", "300", "1e5"
+            ]
+        );
     }
 }
