@@ -93,6 +93,46 @@ fn read_json(path: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
 }
 
+/// PSNR (dB) of two 8-bit RGB images as the metric defines it: `10 log10(1 / MSE)` over all
+/// pixels and channels, values in [0, 1].
+fn psnr_of(a: &image::RgbImage, b: &image::RgbImage) -> f64 {
+    assert_eq!(a.dimensions(), b.dimensions());
+    let n = (a.width() * a.height() * 3) as f64;
+    let mse = a
+        .as_raw()
+        .iter()
+        .zip(b.as_raw())
+        .map(|(&x, &y)| ((x as f64 - y as f64) / 255.0).powi(2))
+        .sum::<f64>()
+        / n;
+    10.0 * (1.0 / mse).log10()
+}
+
+/// The folder of the tiny synthetic dataset in the test's cache.
+fn dataset_dir(cache: &Path) -> PathBuf {
+    std::fs::read_dir(cache.join("datasets"))
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path()
+}
+
+/// The per-angle bins of a method: lower bounds and the number of views they hold.
+fn bins(v: &serde_json::Value, axis: &str) -> Vec<(f64, u64)> {
+    v["per_angle"][axis]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| {
+            (
+                b["from_deg"].as_f64().unwrap(),
+                b["views"].as_u64().unwrap(),
+            )
+        })
+        .collect()
+}
+
 fn assert_scores_in_range(v: &serde_json::Value) {
     let psnr = v["psnr"].as_f64().unwrap();
     let ssim = v["ssim"].as_f64().unwrap();
@@ -104,7 +144,7 @@ fn assert_scores_in_range(v: &serde_json::Value) {
 
 #[test]
 fn evaluate_writes_every_key_the_report_and_the_grids() {
-    let (_, run_dir) = trained();
+    let (cache, run_dir) = trained();
     let dir = scratch("evaluate");
     let json = dir.join("scores.json");
     let out = dir.join("eval");
@@ -142,9 +182,68 @@ fn evaluate_writes_every_key_the_report_and_the_grids() {
         assert_eq!(views, 100);
         bins.iter().for_each(assert_scores_in_range);
     }
+
+    // The copy-the-source baseline, in the model's structure, on the same views: its PSNR is
+    // the mean over views 1..=100 of the PSNR of view 0 against each, computed here from the
+    // dataset's PNGs.
+    let copy = &v["copy_source"];
+    assert_scores_in_range(copy);
+    assert_eq!(copy["subjects"][name]["views"], 100);
+    assert_eq!(copy["subjects"][name]["psnr"], copy["psnr"]);
+    for axis in ["yaw", "pitch"] {
+        assert_eq!(bins(copy, axis), bins(&v, axis), "{axis}");
+    }
+    let subject_dir = dataset_dir(cache).join(name);
+    let rgb = |view: usize| {
+        image::open(subject_dir.join(format!("rgb/{view:03}.png")))
+            .unwrap()
+            .to_rgb8()
+    };
+    let source = rgb(0);
+    let expected = (1..=100).map(|t| psnr_of(&source, &rgb(t))).sum::<f64>() / 100.0;
+    let got = copy["psnr"].as_f64().unwrap();
+    assert!(
+        (got - expected).abs() < 1e-3,
+        "copy source PSNR {got} vs {expected}"
+    );
+    // The source is not the target: SSIM below 1, LPIPS above 0.
+    assert!(copy["ssim"].as_f64().unwrap() < 0.99, "{copy}");
+
+    // The tiny teacher has a 3DGS head: I_gs is scored on the same views.
+    let gs = &v["gs"];
+    for key in ["psnr", "ssim", "lpips"] {
+        assert!(gs[key].as_f64().unwrap().is_finite(), "{gs}");
+    }
+    assert_ne!(gs["psnr"], v["psnr"]);
+    assert_eq!(gs["subjects"][name]["views"], 100);
+    for axis in ["yaw", "pitch"] {
+        assert_eq!(bins(gs, axis), bins(&v, axis), "{axis}");
+    }
+
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(report.contains("| PSNR (dB) | SSIM | LPIPS | FPS (1 pair) |"));
+    for row in [
+        "| model (NVS decoder I_t) |",
+        "| model's 3DGS head (I_gs) |",
+    ] {
+        assert!(report.contains(row), "{row}: {report}");
+    }
+    let copy_row = format!(
+        "| copy source (view 0) | {:.3} | {:.4} | {:.4} | - |",
+        got,
+        copy["ssim"].as_f64().unwrap(),
+        copy["lpips"].as_f64().unwrap()
+    );
+    assert!(report.contains(&copy_row), "{copy_row}: {report}");
     assert!(report.contains(&format!("grids/{name}.png")));
+    // The run's training curves, beside the report.
+    assert!(
+        report.contains("![training curves](training-curves.png)"),
+        "{report}"
+    );
+    let curves = image::open(out.join("training-curves.png")).unwrap();
+    let (w, h) = prism_train::PLOT_SIZE;
+    assert_eq!((curves.width(), curves.height()), (w, h));
     // 4 rows of source | prediction | ground truth | error map, 32 px each.
     let grid = image::open(out.join("grids").join(format!("{name}.png"))).unwrap();
     assert_eq!((grid.width(), grid.height()), (4 * 32, 4 * 32));
@@ -400,20 +499,20 @@ fn another_config_and_a_missing_3dgs_head_are_one_clear_line() {
     no_gs.losses.gs = 0.0;
     no_gs.train.steps = 1;
     no_gs.train.checkpoint_every = 1;
-    let run = dir.join("no-gs");
+    let no_gs_run = dir.join("no-gs");
     train(
         &no_gs,
         &TeacherTask {
             lpips_weights: None,
         },
-        &prism_train::RunOptions::new(&run, prism_data::BackendKind::Ndarray),
+        &prism_train::RunOptions::new(&no_gs_run, prism_data::BackendKind::Ndarray),
     )
     .unwrap();
     let ply = dir.join("person.ply");
     let err = failure(prism(&[
         "infer",
         "--checkpoint",
-        s(&run),
+        s(&no_gs_run),
         "--image",
         s(&photo),
         "--out",
@@ -423,4 +522,36 @@ fn another_config_and_a_missing_3dgs_head_are_one_clear_line() {
     ]));
     assert!(err.contains("3DGS head"), "{err}");
     assert!(!ply.exists());
+
+    // Its evaluation has no `gs` entry, and its copy-source baseline on the 2 validation views
+    // is the one training validation logged.
+    let json = dir.join("no-gs.json");
+    let out = dir.join("no-gs-eval");
+    run(prism(&[
+        "evaluate",
+        "--checkpoint",
+        s(&no_gs_run),
+        "--views",
+        "2",
+        "--json",
+        s(&json),
+        "--out",
+        s(&out),
+    ]));
+    let v = read_json(&json);
+    assert!(v.get("gs").is_none(), "{v}");
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(!report.contains("I_gs"), "{report}");
+    let logged = prism_train::read_metrics(&no_gs_run.join("metrics.jsonl"))
+        .unwrap()
+        .into_iter()
+        .find(|l| l.get("copy_source_psnr").is_some())
+        .unwrap();
+    for key in ["psnr", "ssim", "lpips"] {
+        let (got, want) = (
+            v["copy_source"][key].as_f64().unwrap(),
+            logged[format!("copy_source_{key}")].as_f64().unwrap(),
+        );
+        assert!((got - want).abs() < 1e-6, "{key}: {got} vs {want}");
+    }
 }

@@ -67,7 +67,36 @@ fn quickstart_fast_runs_end_to_end() {
                 .join("checkpoints/step-00000004")
                 .is_dir()
         );
+        // Its 3DGS head's render I_gs has its row, with the evaluation's scores.
+        let gs = row_values(&stdout, &format!("| {model} I_gs (3DGS head) | - | - |"));
+        assert_eq!(gs.len(), 3);
+        assert!((gs[0] - json["gs"]["psnr"].as_f64().unwrap()).abs() < 1e-3);
+        // The run folder has its training curves, drawn (not blank), and the evaluation a copy.
+        let plot = image::open(out_dir.join(model).join(prism_train::PLOT_FILE))
+            .unwrap()
+            .to_rgb8();
+        assert_eq!(plot.dimensions(), prism_train::PLOT_SIZE);
+        let drawn = plot.pixels().filter(|p| p.0 != [255, 255, 255]).count();
+        let total = plot.pixels().len();
+        assert!(
+            drawn > total / 50 && drawn < total / 2,
+            "{drawn} of {total}"
+        );
+        assert!(eval.join("training-curves.png").is_file());
+        assert!(stdout.contains(&format!("{model} training curves: ")));
     }
+    // The copy-the-source baseline, on the same views as both models.
+    let copy = row_values(&stdout, "| copy source (view 0) | - | - |");
+    assert_eq!(copy.len(), 3, "{stdout}");
+    let teacher_eval: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out_dir.join("teacher/evaluation/evaluation.json")).unwrap(),
+    )
+    .unwrap();
+    assert!((copy[0] - teacher_eval["copy_source"]["psnr"].as_f64().unwrap()).abs() < 1e-3);
+    assert!(
+        copy.iter().all(|v| v.is_finite()) && copy[0] > 5.0,
+        "{copy:?}"
+    );
     // The student is the real distillation: the tiny schedule compressed to 4 steps ends with
     // 2 of each group of 3 blocks Linear, and L_distill is logged.
     let student = out_dir.join("student/checkpoints/step-00000004");
@@ -104,6 +133,20 @@ fn quickstart_fast_runs_end_to_end() {
         "mean person centre {centre}"
     );
     let _ = std::fs::remove_dir_all(&root);
+}
+
+/// The numbers of the table row of `stdout` that starts with `prefix` (its `-` cells skipped).
+fn row_values(stdout: &str, prefix: &str) -> Vec<f64> {
+    let row = stdout
+        .lines()
+        .find(|l| l.starts_with(prefix))
+        .unwrap_or_else(|| panic!("no row {prefix} in\n{stdout}"));
+    row[prefix.len()..]
+        .split('|')
+        .map(str::trim)
+        .filter(|c| !c.is_empty() && *c != "-")
+        .map(|c| c.parse().unwrap())
+        .collect()
 }
 
 /// The bounding box height and centre (fractions of the image height) of `alpha > 0.5`.

@@ -114,6 +114,9 @@ impl DistillStudentArgs {
             println!("checkpoint: {}", path.display());
         }
         println!("metrics: {}", out.join(prism_train::METRICS_FILE).display());
+        if let Some(path) = &summary.plot {
+            println!("training curves: {}", path.display());
+        }
         Ok(())
     }
 }

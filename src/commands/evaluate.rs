@@ -14,8 +14,11 @@ use prism_train::{EvaluateOptions, evaluate_checkpoint};
 /// With --checkpoint: for each test subject of the dataset, source view 0 and targets 1..=100;
 /// the scores are averaged per subject, then over the subjects, and broken down by view angle
 /// (10-degree bins of |yaw| and |pitch|); the forward pass of one (source, target) pair is
-/// timed (FPS, warm-up and data loading excluded). Writes OUT/evaluation.json, OUT/report.md
-/// and a PNG grid per subject (source | prediction | ground truth | error map).
+/// timed (FPS, warm-up and data loading excluded). The same scores are given for the "copy the
+/// source view" baseline (`copy_source`: view 0 as the prediction of every target view) and, for
+/// a model with a 3DGS head, for its render I_gs (`gs`). Writes OUT/evaluation.json,
+/// OUT/report.md, a PNG grid per subject (source | prediction | ground truth | error map) and
+/// the run's training curves (OUT/training-curves.png).
 ///
 /// With --pred and --gt: scores the images of any method (two files, or two folders matched by
 /// file name) with the same metrics; JSON `{"mean": {..}, "images": {NAME: {..}}}`.
@@ -99,6 +102,17 @@ impl EvaluateArgs {
             e.fps,
             self.backend
         );
+        if let Some(gs) = &e.gs {
+            println!(
+                "  3DGS head (I_gs):     PSNR {:.3} dB  SSIM {:.4}  LPIPS {:.4}",
+                gs.psnr, gs.ssim, gs.lpips
+            );
+        }
+        let c = &e.copy_source;
+        println!(
+            "  copy source (view 0): PSNR {:.3} dB  SSIM {:.4}  LPIPS {:.4}",
+            c.psnr, c.ssim, c.lpips
+        );
         println!("report: {}", files.report.display());
         println!("scores: {}", files.json.display());
         if let Some(grid) = files.grids.first() {
@@ -106,6 +120,9 @@ impl EvaluateArgs {
                 "sample grids (source | prediction | ground truth | error): {}",
                 grid.parent().unwrap_or(&out).display()
             );
+        }
+        if let Some(path) = &files.training_curves {
+            println!("training curves: {}", path.display());
         }
         Ok(())
     }

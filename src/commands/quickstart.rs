@@ -11,7 +11,8 @@ use prism_train::{
 
 /// Run the whole pipeline on the small config: synthesise the default dataset, train the
 /// teacher, distil the student, evaluate both on the held-out people and print PSNR, SSIM,
-/// LPIPS and FPS with the paths of the reports and sample images.
+/// LPIPS and FPS (with rows for their 3DGS heads' renders I_gs and for the copy-the-source
+/// baseline) and the paths of the reports, sample images and training curves.
 ///
 /// The step counts are scaled down from the config's so the job fits 30 minutes on a 2-core
 /// CPU (flex; 18 measured): 300 teacher and 150 student steps, the protocol's 100 target views

@@ -113,6 +113,9 @@ impl TrainTeacherArgs {
             println!("checkpoint: {}", path.display());
         }
         println!("metrics: {}", out.join(prism_train::METRICS_FILE).display());
+        if let Some(path) = &summary.plot {
+            println!("training curves: {}", path.display());
+        }
         Ok(())
     }
 }

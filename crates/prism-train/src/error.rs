@@ -96,6 +96,14 @@ pub enum TrainError {
         /// What was not finite at the last one.
         reason: String,
     },
+    /// A plot of the training curves could not be drawn.
+    #[error("{path}: cannot draw the plot: {message}")]
+    Plot {
+        /// The PNG being drawn.
+        path: PathBuf,
+        /// Why.
+        message: String,
+    },
     /// A training worker failed on one of the devices.
     #[error("training step failed: {0}")]
     Worker(String),

@@ -4,6 +4,10 @@
 //! SSIM and LPIPS are averaged over each subject's views, then over the subjects. The same
 //! scores are also pooled by view angle (10-degree bins of |yaw| and of |pitch|), and the
 //! model's forward pass is timed on one (source, target) pair.
+//!
+//! Every score comes with the same scores, on the same views, of the "copy the source view"
+//! baseline (view 0 taken as the prediction of every target view), and, for a model with a 3DGS
+//! head, of its render `I_gs`.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -23,10 +27,12 @@ use prism_model::Prism;
 use serde::Serialize;
 
 use crate::cache::ensure_synthetic_dataset;
-use crate::checkpoint::load_model;
+use crate::checkpoint::{CHECKPOINTS_DIR, load_model};
 use crate::error::{Result, TrainError};
 use crate::images::{HostImages, error_map, save_png, save_text, tile};
-use crate::predict::{Pairs, inference_model, synthesise};
+use crate::log::METRICS_FILE;
+use crate::plot::{PLOT_FILE, plot_metrics};
+use crate::predict::{Pairs, forward_pairs, inference_model, synthesise};
 use crate::validate::validation_views;
 
 /// Width of the view-angle bins of the breakdown, degrees.
@@ -37,6 +43,8 @@ pub const EVALUATION_JSON: &str = "evaluation.json";
 pub const REPORT_MD: &str = "report.md";
 /// Folder of the per-subject PNG grids in an evaluation folder.
 pub const GRIDS_DIR: &str = "grids";
+/// File name, in an evaluation folder, of the training curves of the checkpoint's run.
+pub const TRAINING_CURVES_PNG: &str = "training-curves.png";
 
 /// How an evaluation runs.
 #[derive(Clone, Debug)]
@@ -113,7 +121,35 @@ pub struct PerAngle {
     pub pitch: Vec<AngleBin>,
 }
 
-/// The result of an evaluation: what `evaluation.json` holds.
+/// The scores of one way of predicting the target views (the 3DGS head's render, or the copy
+/// of the source view) on the evaluation's views, in the structure of the model's scores.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct MethodScores {
+    /// PSNR in dB: each subject's views averaged, then the subjects.
+    pub psnr: f64,
+    /// SSIM, averaged the same way.
+    pub ssim: f64,
+    /// LPIPS, averaged the same way.
+    pub lpips: f64,
+    /// Each test subject's mean scores.
+    pub subjects: BTreeMap<String, MeanScores>,
+    /// The scores by view angle.
+    pub per_angle: PerAngle,
+}
+
+impl PerAngle {
+    /// The bins of `"yaw"`, or else of pitch.
+    pub fn axis(&self, axis: &str) -> &[AngleBin] {
+        if axis == "yaw" {
+            &self.yaw
+        } else {
+            &self.pitch
+        }
+    }
+}
+
+/// The result of an evaluation: what `evaluation.json` holds. The top-level scores are the
+/// model's (its NVS decoder's `I_t`).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Evaluation {
     /// PSNR in dB: each subject's views averaged, then the subjects.
@@ -133,6 +169,14 @@ pub struct Evaluation {
     pub resolution: u32,
     /// Target views per subject.
     pub views_per_subject: usize,
+    /// The "copy the source view" baseline on the same views: the source (view 0) taken as the
+    /// prediction of every target view. A model that does not beat it has learnt nothing about
+    /// other viewpoints.
+    pub copy_source: MethodScores,
+    /// The 3DGS head's render `I_gs` (over the background) on the same views, from a forward
+    /// pass with the head; `None` (absent from the JSON) for a model without a 3DGS head.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gs: Option<MethodScores>,
 }
 
 /// One subject's sample grid: per row source | prediction | ground truth | error map.
@@ -149,6 +193,58 @@ struct ViewScore {
     yaw: f32,
     pitch: f32,
     scores: [f64; 3],
+}
+
+/// The scores of one prediction method, view by view, grouped by subject.
+#[derive(Default)]
+struct Tally {
+    subjects: BTreeMap<String, Vec<[f64; 3]>>,
+    views: Vec<ViewScore>,
+}
+
+impl Tally {
+    fn add(&mut self, subject: &str, yaw: f32, pitch: f32, scores: [f64; 3]) {
+        self.subjects
+            .entry(subject.to_string())
+            .or_default()
+            .push(scores);
+        self.views.push(ViewScore { yaw, pitch, scores });
+    }
+
+    /// Each subject's views averaged, then the subjects; the views pooled by angle.
+    fn finish(self) -> MethodScores {
+        let subjects: BTreeMap<String, MeanScores> = self
+            .subjects
+            .into_iter()
+            .map(|(name, rows)| (name, MeanScores::of(&rows)))
+            .collect();
+        let means: Vec<[f64; 3]> = subjects
+            .values()
+            .map(|m| [m.psnr, m.ssim, m.lpips])
+            .collect();
+        let overall = MeanScores::of(&means);
+        MethodScores {
+            psnr: overall.psnr,
+            ssim: overall.ssim,
+            lpips: overall.lpips,
+            subjects,
+            per_angle: PerAngle {
+                yaw: angle_bins(&self.views, |v| v.yaw),
+                pitch: angle_bins(&self.views, |v| v.pitch),
+            },
+        }
+    }
+}
+
+/// PSNR, SSIM and LPIPS (NaN without LPIPS) of each pair of `pred` and `gt`.
+fn score(pred: Tensor<4>, gt: Tensor<4>, lpips: Option<&Lpips>) -> Vec<[f64; 3]> {
+    let p = psnr(pred.clone(), gt.clone());
+    let q = ssim(pred.clone(), gt.clone());
+    let l = match lpips {
+        Some(lpips) => lpips.distance(pred, gt),
+        None => vec![f64::NAN; p.len()],
+    };
+    (0..p.len()).map(|i| [p[i], q[i], l[i]]).collect()
 }
 
 /// Evaluates a checkpoint (a checkpoint folder or a run folder's latest) on the dataset at
@@ -181,12 +277,29 @@ pub fn evaluate_checkpoint(
         checkpoint.display(),
         data_dir.display()
     );
-    let files = write_evaluation(out, &title, &evaluation, &grids)?;
+    let run = run_folder(checkpoint);
+    let files = write_evaluation(out, &title, &evaluation, &grids, run.as_deref())?;
     Ok((evaluation, files))
+}
+
+/// The run folder of a checkpoint path, when it has a metrics log: the path itself (a run
+/// folder), or `RUN` of `RUN/checkpoints/step-N`.
+pub fn run_folder(checkpoint: &Path) -> Option<PathBuf> {
+    if checkpoint.join(METRICS_FILE).is_file() {
+        return Some(checkpoint.to_path_buf());
+    }
+    let parent = checkpoint.parent()?;
+    let run = parent.parent()?;
+    (parent.file_name()? == CHECKPOINTS_DIR && run.join(METRICS_FILE).is_file())
+        .then(|| run.to_path_buf())
 }
 
 /// Evaluates `model` (an inference model on `device`) on the test subjects of the dataset
 /// opened by `reader`, at `resolution`; returns the scores and each subject's grid.
+///
+/// The views are scored from one forward pass of the whole model (with its 3DGS head, when it
+/// has one, for `I_gs`: the NVS decoder's `I_t` does not depend on that head); the FPS is
+/// measured without the 3DGS head, as inference serves.
 ///
 /// # Errors
 /// A dataset without test subjects, or unreadable files.
@@ -198,7 +311,8 @@ pub fn evaluate(
     device: &Device,
     options: &EvaluateOptions,
 ) -> Result<(Evaluation, Vec<SubjectGrid>)> {
-    let model = inference_model(model);
+    let fast = inference_model(model);
+    let has_gs = model.gs_head.is_some();
     let dataset = SampleDataset::new(
         reader.clone(),
         SplitKind::Test,
@@ -215,13 +329,11 @@ pub fn evaluate(
         .collect();
     let subjects = dataset.subjects().to_vec();
     let bar = progress_bar(options.progress, (subjects.len() * views.len()) as u64);
-    let mut all = Vec::new();
-    let mut per_subject = BTreeMap::new();
+    let (mut nvs, mut copy, mut gs) = (Tally::default(), Tally::default(), Tally::default());
     let mut grids = Vec::new();
     let mut fps_pair = None;
     for (s, subject) in subjects.iter().enumerate() {
         bar.set_message(subject.clone());
-        let mut rows = Vec::new();
         let mut grid_rows = Vec::new();
         for chunk in views.chunks(options.batch.max(1)) {
             let samples = chunk
@@ -233,25 +345,25 @@ pub fn evaluate(
             if fps_pair.is_none() {
                 fps_pair = Some(pairs.slice(0, 1));
             }
-            let pred = synthesise(&model, &pairs);
+            let out = forward_pairs(if has_gs { model } else { &fast }, &pairs);
+            let pred = out.image.clamp(0.0, 1.0);
             let gt = batch.target_image.clone();
-            let p = psnr(pred.clone(), gt.clone());
-            let q = ssim(pred.clone(), gt.clone());
-            let l = match lpips {
-                Some(lpips) => lpips.distance(pred.clone(), gt.clone()),
-                None => vec![f64::NAN; p.len()],
-            };
+            let nvs_scores = score(pred.clone(), gt.clone(), lpips);
+            let copy_scores = score(batch.source_image.clone(), gt.clone(), lpips);
+            let gs_scores = out
+                .gaussians
+                .map(|g| score(g.image.clamp(0.0, 1.0), gt.clone(), lpips));
             let pred_host = HostImages::from_tensor(pred);
             let gt_host = HostImages::from_tensor(gt);
             let src_host = HostImages::from_tensor(batch.source_image.clone());
             for (i, sample) in samples.iter().enumerate() {
                 let target = &sample.targets[0];
-                rows.push([p[i], q[i], l[i]]);
-                all.push(ViewScore {
-                    yaw: target.yaw_deg,
-                    pitch: target.pitch_deg,
-                    scores: [p[i], q[i], l[i]],
-                });
+                let (yaw, pitch) = (target.yaw_deg, target.pitch_deg);
+                nvs.add(subject, yaw, pitch, nvs_scores[i]);
+                copy.add(subject, yaw, pitch, copy_scores[i]);
+                if let Some(g) = &gs_scores {
+                    gs.add(subject, yaw, pitch, g[i]);
+                }
                 if grid_views.contains(&target.index) {
                     let (w, h) = (pred_host.width, pred_host.height);
                     grid_rows.push(vec![
@@ -264,35 +376,29 @@ pub fn evaluate(
             }
             bar.inc(chunk.len() as u64);
         }
-        per_subject.insert(subject.clone(), MeanScores::of(&rows));
         grids.push(SubjectGrid {
             subject: subject.clone(),
             image: tile(&grid_rows),
         });
     }
     bar.finish_and_clear();
-    let means: Vec<[f64; 3]> = per_subject
-        .values()
-        .map(|m| [m.psnr, m.ssim, m.lpips])
-        .collect();
-    let overall = MeanScores::of(&means);
     let fps = match fps_pair {
-        Some(pair) => forward_fps(&model, &pair, options.fps_runs.max(1)),
+        Some(pair) => forward_fps(&fast, &pair, options.fps_runs.max(1)),
         None => f64::NAN,
     };
+    let nvs = nvs.finish();
     Ok((
         Evaluation {
-            psnr: overall.psnr,
-            ssim: overall.ssim,
-            lpips: overall.lpips,
+            psnr: nvs.psnr,
+            ssim: nvs.ssim,
+            lpips: nvs.lpips,
             fps,
-            subjects: per_subject,
-            per_angle: PerAngle {
-                yaw: angle_bins(&all, |v| v.yaw),
-                pitch: angle_bins(&all, |v| v.pitch),
-            },
+            subjects: nvs.subjects,
+            per_angle: nvs.per_angle,
             resolution,
             views_per_subject: views.len(),
+            copy_source: copy.finish(),
+            gs: has_gs.then(|| gs.finish()),
         },
         grids,
     ))
@@ -350,18 +456,24 @@ pub struct EvaluationFiles {
     pub report: PathBuf,
     /// One PNG grid per subject.
     pub grids: Vec<PathBuf>,
+    /// The training curves of the checkpoint's run ([`TRAINING_CURVES_PNG`]), when its run
+    /// folder was known.
+    pub training_curves: Option<PathBuf>,
 }
 
 /// Writes `evaluation.json`, `report.md` and `grids/SUBJECT.png` into `dir` (created), each
-/// atomically. `title` heads the report (e.g. the checkpoint evaluated).
+/// atomically. `title` heads the report (e.g. the checkpoint evaluated). With the checkpoint's
+/// `run` folder, its training curves (its [`PLOT_FILE`], or, for a run without one, a plot of
+/// its `metrics.jsonl`) are put beside the report as [`TRAINING_CURVES_PNG`] and shown in it.
 ///
 /// # Errors
-/// I/O errors, naming the file.
+/// I/O errors, naming the file; a plot that cannot be drawn.
 pub fn write_evaluation(
     dir: &Path,
     title: &str,
     evaluation: &Evaluation,
     grids: &[SubjectGrid],
+    run: Option<&Path>,
 ) -> Result<EvaluationFiles> {
     let grid_dir = dir.join(GRIDS_DIR);
     std::fs::create_dir_all(&grid_dir).map_err(|e| TrainError::io(&grid_dir, e))?;
@@ -371,18 +483,47 @@ pub fn write_evaluation(
         save_png(&path, &grid.image)?;
         grid_paths.push(path);
     }
+    let training_curves = match run {
+        Some(run) => training_curves(run, &dir.join(TRAINING_CURVES_PNG))?,
+        None => None,
+    };
     let json = dir.join(EVALUATION_JSON);
     save_text(&json, &evaluation_json(evaluation))?;
     let report = dir.join(REPORT_MD);
     save_text(
         &report,
-        &markdown_report(title, evaluation, &grid_paths, dir),
+        &markdown_report(
+            title,
+            evaluation,
+            &grid_paths,
+            training_curves.as_deref(),
+            dir,
+        ),
     )?;
     Ok(EvaluationFiles {
         json,
         report,
         grids: grid_paths,
+        training_curves,
     })
+}
+
+/// Puts the training curves of `run` at `out`: a copy of its [`PLOT_FILE`], or a plot of its
+/// `metrics.jsonl` when it has no plot; `None` when it has neither.
+fn training_curves(run: &Path, out: &Path) -> Result<Option<PathBuf>> {
+    let plot = run.join(PLOT_FILE);
+    let metrics = run.join(METRICS_FILE);
+    if plot.is_file() {
+        let tmp = out.with_extension("png.partial");
+        std::fs::copy(&plot, &tmp).map_err(|e| TrainError::io(&plot, e))?;
+        std::fs::rename(&tmp, out).map_err(|e| TrainError::io(out, e))?;
+    } else if metrics.is_file() {
+        let name = run.file_name().unwrap_or(run.as_os_str()).to_string_lossy();
+        plot_metrics(&metrics, out, &format!("training curves of {name}"))?;
+    } else {
+        return Ok(None);
+    }
+    Ok(Some(out.to_path_buf()))
 }
 
 /// The evaluation as pretty JSON (NaN written as `null`).
@@ -390,12 +531,25 @@ pub fn evaluation_json(evaluation: &Evaluation) -> String {
     serde_json::to_string_pretty(evaluation).expect("evaluation serialises") + "\n"
 }
 
-/// The Markdown report: the means, the per-subject and per-angle tables, links to the grids
-/// (relative to `dir`).
+/// The rows of the report's tables after the model's: the 3DGS head's `I_gs` (when there is
+/// one) and the copy of the source view, with their names.
+fn other_rows(e: &Evaluation) -> Vec<(&'static str, &MethodScores)> {
+    let mut rows = Vec::new();
+    if let Some(gs) = &e.gs {
+        rows.push(("I_gs", gs));
+    }
+    rows.push(("copy source", &e.copy_source));
+    rows
+}
+
+/// The Markdown report: the means of the model, of its 3DGS head (if any) and of the copy of
+/// the source view; per-subject and per-angle tables with the same three; the training curves
+/// and links to the grids (relative to `dir`).
 pub fn markdown_report(
     title: &str,
     evaluation: &Evaluation,
     grids: &[PathBuf],
+    training_curves: Option<&Path>,
     dir: &Path,
 ) -> String {
     let e = evaluation;
@@ -404,43 +558,108 @@ pub fn markdown_report(
     let _ = writeln!(
         out,
         "{} test subjects, source view 0, {} target views each, {} x {} px. Each subject's \
-         views are averaged, then the subjects.\n",
+         views are averaged, then the subjects. \"copy source\" takes the source view as the \
+         prediction of every target view: the baseline a model must beat.\n",
         e.subjects.len(),
         e.views_per_subject,
         e.resolution,
         e.resolution
     );
-    let _ = writeln!(out, "| PSNR (dB) | SSIM | LPIPS | FPS (1 pair) |");
-    let _ = writeln!(out, "|---:|---:|---:|---:|");
     let _ = writeln!(
         out,
-        "| {:.3} | {:.4} | {:.4} | {:.2} |\n",
+        "| prediction | PSNR (dB) | SSIM | LPIPS | FPS (1 pair) |"
+    );
+    let _ = writeln!(out, "|---|---:|---:|---:|---:|");
+    let _ = writeln!(
+        out,
+        "| model (NVS decoder I_t) | {:.3} | {:.4} | {:.4} | {:.2} |",
         e.psnr, e.ssim, e.lpips, e.fps
     );
-    let _ = writeln!(out, "## Per subject\n");
-    let _ = writeln!(out, "| subject | views | PSNR (dB) | SSIM | LPIPS |");
-    let _ = writeln!(out, "|---|---:|---:|---:|---:|");
-    for (name, s) in &e.subjects {
+    if let Some(gs) = &e.gs {
         let _ = writeln!(
             out,
-            "| {name} | {} | {:.3} | {:.4} | {:.4} |",
-            s.views, s.psnr, s.ssim, s.lpips
+            "| model's 3DGS head (I_gs) | {:.3} | {:.4} | {:.4} | - |",
+            gs.psnr, gs.ssim, gs.lpips
         );
     }
-    for (axis, bins) in [("yaw", &e.per_angle.yaw), ("pitch", &e.per_angle.pitch)] {
-        let _ = writeln!(out, "\n## By |{axis}|\n");
-        let _ = writeln!(
-            out,
-            "| abs {axis} (deg) | views | PSNR (dB) | SSIM | LPIPS |"
+    let c = &e.copy_source;
+    let _ = writeln!(
+        out,
+        "| copy source (view 0) | {:.3} | {:.4} | {:.4} | - |",
+        c.psnr, c.ssim, c.lpips
+    );
+    let _ = writeln!(
+        out,
+        "\nModel minus copy source: PSNR {:+.3} dB, SSIM {:+.4}, LPIPS {:+.4} (the model beats \
+         the baseline where PSNR and SSIM are positive and LPIPS negative).\n",
+        e.psnr - c.psnr,
+        e.ssim - c.ssim,
+        e.lpips - c.lpips
+    );
+    // The per-subject and per-angle tables: the model's three scores, then PSNR and LPIPS of
+    // the others.
+    let others = other_rows(e);
+    let mut head = String::from("| views | PSNR (dB) | SSIM | LPIPS |");
+    let mut rule = String::from("|---:|---:|---:|---:|");
+    for (name, _) in &others {
+        let _ = write!(head, " {name} PSNR | {name} LPIPS |");
+        rule.push_str("---:|---:|");
+    }
+    let row = |m: &MeanScores, rest: Vec<Option<&MeanScores>>| {
+        let mut line = format!(
+            "| {} | {:.3} | {:.4} | {:.4} |",
+            m.views, m.psnr, m.ssim, m.lpips
         );
-        let _ = writeln!(out, "|---|---:|---:|---:|---:|");
-        for b in bins {
+        for o in rest {
+            match o {
+                Some(o) => {
+                    let _ = write!(line, " {:.3} | {:.4} |", o.psnr, o.lpips);
+                }
+                None => line.push_str(" - | - |"),
+            }
+        }
+        line
+    };
+    let _ = writeln!(out, "## Per subject\n");
+    let _ = writeln!(out, "| subject {head}");
+    let _ = writeln!(out, "|---{rule}");
+    for (name, s) in &e.subjects {
+        let rest = others.iter().map(|(_, o)| o.subjects.get(name)).collect();
+        let _ = writeln!(out, "| {name} {}", row(s, rest));
+    }
+    for axis in ["yaw", "pitch"] {
+        let _ = writeln!(out, "\n## By |{axis}|\n");
+        let _ = writeln!(out, "| abs {axis} (deg) {head}");
+        let _ = writeln!(out, "|---{rule}");
+        for b in e.per_angle.axis(axis) {
+            let rest = others
+                .iter()
+                .map(|(_, o)| {
+                    o.per_angle
+                        .axis(axis)
+                        .iter()
+                        .find(|ob| ob.from_deg == b.from_deg)
+                        .map(|ob| &ob.scores)
+                })
+                .collect();
             let _ = writeln!(
                 out,
-                "| {:.0}-{:.0} | {} | {:.3} | {:.4} | {:.4} |",
-                b.from_deg, b.to_deg, b.scores.views, b.scores.psnr, b.scores.ssim, b.scores.lpips
+                "| {:.0}-{:.0} {}",
+                b.from_deg,
+                b.to_deg,
+                row(&b.scores, rest)
             );
         }
+    }
+    if let Some(path) = training_curves {
+        let rel = path.strip_prefix(dir).unwrap_or(path);
+        let _ = writeln!(
+            out,
+            "\n## Training curves\n\nThe run's loss terms, and its validation PSNR, SSIM and \
+             LPIPS with the copy-source baseline (dashed), from its metrics.jsonl.\n\n![training \
+             curves]({})",
+            rel.display()
+        );
     }
     if !grids.is_empty() {
         let _ = writeln!(

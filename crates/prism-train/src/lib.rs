@@ -14,6 +14,7 @@
 //! - Student: [`StudentTask`] / [`StudentLoss`] with [`student_config`] (distillation).
 //! - Evaluation ([`evaluate`]: the paper's protocol, per-angle breakdown, FPS, report) and
 //!   inference from a photo ([`infer`]), both through [`predict`]; images in [`images`].
+//! - Training curves: [`plot_run`] draws a run's `metrics.jsonl` into its [`PLOT_FILE`].
 
 pub mod cache;
 pub mod checkpoint;
@@ -27,6 +28,7 @@ pub mod images;
 pub mod infer;
 pub mod log;
 pub mod parallel;
+pub mod plot;
 pub mod predict;
 pub mod progress;
 pub mod quickstart;
@@ -57,6 +59,7 @@ pub use infer::{
 };
 pub use log::{METRICS_FILE, MetricsLog, read_metrics};
 pub use parallel::{DataParallel, training_devices};
+pub use plot::{PLOT_FILE, PLOT_SIZE, TrainingCurves, plot_metrics, plot_run};
 pub use predict::{Pairs, forward_pairs, inference_model, synthesise};
 pub use quickstart::{
     QuickstartModel, QuickstartOptions, QuickstartPlan, QuickstartReport, StudentJob,

@@ -1,6 +1,7 @@
 //! `prism quickstart`: the whole pipeline on the shipped configs in one command. Synthesises
 //! the default dataset, trains the teacher, distils the student from it, evaluates both and
-//! tabulates PSNR, SSIM, LPIPS and FPS.
+//! tabulates PSNR, SSIM, LPIPS and FPS, beside the scores of their 3DGS heads' renders `I_gs`
+//! and of the "copy the source view" baseline.
 //!
 //! The step counts are scaled down from the configs' so the whole job fits a time budget on a
 //! 2-core CPU ([`QuickstartPlan::standard`]: the small config, 17.7 minutes measured;
@@ -205,7 +206,10 @@ pub fn quickstart(
     })
 }
 
-/// The quickstart's result table (Markdown) and where the reports and sample images are.
+/// The quickstart's result table (Markdown) and where the reports, sample images and training
+/// curves are. Beside the teacher and the student (their NVS decoders' `I_t`), the renders
+/// `I_gs` of their 3DGS heads (when they have one) and the "copy the source view" baseline on
+/// the same views (the teacher's evaluation's; the student's is on the same views).
 pub fn quickstart_table(report: &QuickstartReport) -> String {
     let mut out = String::new();
     let _ = writeln!(
@@ -213,7 +217,8 @@ pub fn quickstart_table(report: &QuickstartReport) -> String {
         "| model | steps | train (s) | PSNR (dB) | SSIM | LPIPS | FPS |"
     );
     let _ = writeln!(out, "|---|---:|---:|---:|---:|---:|---:|");
-    for (name, m) in [("teacher", &report.teacher), ("student", &report.student)] {
+    let models = [("teacher", &report.teacher), ("student", &report.student)];
+    for (name, m) in models {
         let e = &m.evaluation;
         let _ = writeln!(
             out,
@@ -221,11 +226,29 @@ pub fn quickstart_table(report: &QuickstartReport) -> String {
             m.steps, m.train_seconds, e.psnr, e.ssim, e.lpips, e.fps
         );
     }
+    for (name, m) in models {
+        if let Some(gs) = &m.evaluation.gs {
+            let _ = writeln!(
+                out,
+                "| {name} I_gs (3DGS head) | - | - | {:.3} | {:.4} | {:.4} | - |",
+                gs.psnr, gs.ssim, gs.lpips
+            );
+        }
+    }
+    let c = &report.teacher.evaluation.copy_source;
+    let _ = writeln!(
+        out,
+        "| copy source (view 0) | - | - | {:.3} | {:.4} | {:.4} | - |",
+        c.psnr, c.ssim, c.lpips
+    );
     let _ = writeln!(out);
-    for (name, m) in [("teacher", &report.teacher), ("student", &report.student)] {
+    for (name, m) in models {
         let _ = writeln!(out, "{name} report: {}", m.files.report.display());
         if let Some(grid) = m.files.grids.first() {
             let _ = writeln!(out, "{name} sample images: {}", grid.display());
+        }
+        if let Some(plot) = &m.files.training_curves {
+            let _ = writeln!(out, "{name} training curves: {}", plot.display());
         }
     }
     let _ = writeln!(

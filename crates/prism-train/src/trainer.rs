@@ -35,6 +35,7 @@ use crate::error::{Result, TrainError};
 use crate::groups::learning_rates;
 use crate::log::MetricsLog;
 use crate::parallel::{DataParallel, training_devices};
+use crate::plot::plot_run;
 use crate::schedule::WarmupCosine;
 use crate::step::{StepLoss, StepValues, TrainItem, Trainee};
 use crate::validate::{ValidationScores, Validator, write_png};
@@ -147,6 +148,9 @@ pub struct RunSummary {
     pub last_samples: Option<PathBuf>,
     /// The last checkpoint written.
     pub last_checkpoint: Option<PathBuf>,
+    /// The training curves ([`crate::plot::PLOT_FILE`]), drawn at each validation; the last
+    /// one is the whole run's.
+    pub plot: Option<PathBuf>,
     /// Steps skipped for a non-finite loss or gradient (over the whole run).
     pub skipped_steps: usize,
     /// Mean wall-clock seconds of a training step (data, forward, backward, optimizer;
@@ -259,6 +263,7 @@ pub fn train(config: &TrainingConfig, task: &dyn Task, options: &RunOptions) -> 
         last: None,
         last_samples: None,
         last_checkpoint: None,
+        plot: None,
         skipped_steps: resumed.as_ref().map_or(0, |c| c.state.skipped_steps),
         seconds_per_step: f64::NAN,
         first_loss: None,
@@ -281,6 +286,7 @@ pub fn train(config: &TrainingConfig, task: &dyn Task, options: &RunOptions) -> 
         summary.initial = Some(scores);
         summary.last = Some(scores);
         summary.last_samples = Some(path);
+        summary.plot = refresh_plot(run, &bar);
     }
 
     let order = DataOrder {
@@ -356,6 +362,7 @@ pub fn train(config: &TrainingConfig, task: &dyn Task, options: &RunOptions) -> 
                 run_validation(&validator, &trainee, done, &samples_dir, &mut log, &bar)?;
             summary.last = Some(scores);
             summary.last_samples = Some(path);
+            summary.plot = refresh_plot(run, &bar);
         }
         if last || done.is_multiple_of(train.checkpoint_every) {
             let state = CheckpointState {
@@ -518,6 +525,18 @@ fn run_validation(
         validator.len()
     ));
     Ok((scores, path))
+}
+
+/// Draws the run's training curves from its `metrics.jsonl`. A plot that cannot be drawn is
+/// reported on the progress bar, not fatal: the run goes on.
+fn refresh_plot(run: &Path, bar: &ProgressBar) -> Option<PathBuf> {
+    match plot_run(run) {
+        Ok(path) => Some(path),
+        Err(e) => {
+            bar.println(format!("warning: training curves not drawn: {e}"));
+            None
+        }
+    }
 }
 
 /// The log line of a step: `step`, `loss`, every term, learning rates and gradient norm.

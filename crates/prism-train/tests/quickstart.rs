@@ -62,9 +62,25 @@ fn quickstart_trains_evaluates_both_models_and_tabulates() {
         report.teacher.evaluation.psnr,
         report.student.evaluation.psnr
     );
+    // Both are evaluated on the same views: the same copy-the-source baseline.
+    assert_eq!(
+        report.teacher.evaluation.copy_source,
+        report.student.evaluation.copy_source
+    );
     let table = quickstart_table(&report);
     assert!(
         table.contains("| teacher | 3 |") && table.contains("| student | 2 |"),
+        "{table}"
+    );
+    let copy = &report.teacher.evaluation.copy_source;
+    let copy_row = format!(
+        "| copy source (view 0) | - | - | {:.3} | {:.4} | {:.4} | - |",
+        copy.psnr, copy.ssim, copy.lpips
+    );
+    assert!(table.contains(&copy_row), "{table}");
+    assert!(
+        table.contains("| teacher I_gs (3DGS head) | - | - |")
+            && table.contains("| student I_gs (3DGS head) | - | - |"),
         "{table}"
     );
     assert!(table.contains("student report: "), "{table}");
