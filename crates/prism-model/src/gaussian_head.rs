@@ -14,7 +14,7 @@
 //! - opacity `sigmoid(x_o)` (the logit is what the renderer and the PLY format store);
 //! - colour `sigmoid(x_c)`, 3 channels in [0, 1].
 //!
-//! Two options make the head a geometric prediction from the first step, for training from
+//! Options make the head a geometric prediction from the first step, for training from
 //! scratch (pixel-aligned Gaussians that carry the source pixels, as GPS-Gaussian does):
 //!
 //! - `gs_colour = "source"`: the colour is the source pixel's, corrected by the head,
@@ -22,18 +22,18 @@
 //!   Gaussians splat their source pixel's coordinates instead of a colour, and `I_gs` samples
 //!   the source image there (appearance flow from forward splatting, see [`GsColour::Flow`]);
 //! - `gs_depth = "points"`: the distance is the point branch's (which `L_pts` supervises),
-//!   corrected by the head, `t = t_pts + x_t`, instead of the head's own.
-//!
+//!   corrected by the head, `t = t_pts + x_t`, instead of the head's own;
 //! - `gs_keying = true`: the opacity starts from a key of the source on the background colour
 //!   (every image the model sees is composited on it, photos by `prism infer` too),
 //!   `o = sigmoid(logit(k) + x_o)` with `k = clamp(max_c |I_s - bg| / KEY_WIDTH, 0.01, 0.99)`:
 //!   background pixels start transparent, the person opaque, and the head learns the
 //!   exceptions (a white shirt on a white background) from `L_opacity` and the image losses.
 //!
-//! With either of the first two, the projection starts at zero, so that at initialisation the
-//! Gaussians are the source pixels at the point branch's depth. `gs_scale` sets their initial
-//! size in source-pixel footprints: the renderer adds 0.3 px^2 to every projected covariance,
-//! so 1 footprint is already a blur of about 1.1 px, right for features, too wide for colours.
+//! With any of them the projection starts at zero, so that at initialisation the Gaussians are
+//! the source pixels at the point branch's depth (or `depth_prior`). `gs_scale` sets their
+//! initial size in source-pixel footprints: the renderer adds 0.3 px^2 to every projected
+//! covariance, so 1 footprint is already a blur of about 1.1 px, right for features, too wide
+//! for colours.
 //!
 //! [`GaussianOutput::cloud`] turns the Gaussians of one pair into a standard 3DGS PLY
 //! ([`GaussianCloud`], degree-0 colours).
