@@ -4,7 +4,7 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, OnceLock};
+use std::sync::{Arc, Mutex, MutexGuard, OnceLock};
 
 use burn::tensor::Device;
 use prism_data::BackendKind;
@@ -26,6 +26,14 @@ fn dataset() -> PathBuf {
         dir
     })
     .clone()
+}
+
+/// Held by every test of this file: the backends seed one process-wide random generator, so
+/// a model initialised while another test seeds or initialises would get other weights (the
+/// tests comparing runs bit for bit failed now and then when run in parallel).
+fn serial() -> MutexGuard<'static, ()> {
+    static LOCK: Mutex<()> = Mutex::new(());
+    LOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
 fn options_for(out: &Path) -> RunOptions {
@@ -67,6 +75,7 @@ fn max_difference(a: &[Vec<f32>], b: &[Vec<f32>]) -> f32 {
 
 #[test]
 fn a_resumed_run_reproduces_the_uninterrupted_run() {
+    let _serial = serial();
     let config = tiny_config(8, |c| {
         c.train.checkpoint_every = 3;
         c.train.keep_checkpoints = 5;
@@ -141,6 +150,7 @@ fn copy_dir(from: &Path, to: &Path) {
 
 #[test]
 fn two_devices_train_like_one() {
+    let _serial = serial();
     let config = tiny_config(2, |c| c.train.batch_size = 3);
     let one = tempfile::tempdir().unwrap();
     let two = tempfile::tempdir().unwrap();
@@ -201,6 +211,7 @@ impl Task for PoisonedTask {
 
 #[test]
 fn non_finite_steps_are_skipped_counted_and_stop_the_run() {
+    let _serial = serial();
     // Steps 2 and 3 (0-based) are NaN: skipped, the weights untouched, training goes on.
     let config = tiny_config(5, |c| {
         c.train.checkpoint_every = 1;
@@ -249,6 +260,7 @@ fn non_finite_steps_are_skipped_counted_and_stop_the_run() {
 
 #[test]
 fn checkpoints_are_pruned_and_other_configs_are_refused() {
+    let _serial = serial();
     let config = tiny_config(4, |c| {
         c.train.checkpoint_every = 1;
         c.train.keep_checkpoints = 2;
@@ -333,6 +345,7 @@ fn checkpoints_are_pruned_and_other_configs_are_refused() {
 /// output is tested on the protocol's data in `tests/learning_cli.rs`.)
 #[test]
 fn teacher_training_learns_views_that_copying_cannot_give() {
+    let _serial = serial();
     let data = std::env::temp_dir().join(format!("prism-train-parallax-{}", std::process::id()));
     common::write_dataset_at_depth(&data, 5, 32, -0.5);
     let config = tiny_config(500, |c| {
@@ -373,6 +386,7 @@ fn teacher_training_learns_views_that_copying_cannot_give() {
 
 #[test]
 fn lpips_enters_the_objective_and_the_log() {
+    let _serial = serial();
     let config = tiny_config(2, |c| c.losses.lpips = 0.5);
     let out = tempfile::tempdir().unwrap();
     train(&config, &TeacherTask::default(), &options(out.path())).unwrap();
@@ -407,6 +421,7 @@ fn lpips_enters_the_objective_and_the_log() {
 /// maps) a tiny-config run lowers `L_smplx` and `L_pts`, both logged by name.
 #[test]
 fn geometry_losses_fall_on_synthetic_people() {
+    let _serial = serial();
     let data = tempfile::tempdir().unwrap();
     let options = SynthOptions {
         subjects: 3,
