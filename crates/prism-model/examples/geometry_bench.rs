@@ -108,8 +108,10 @@ fn loss(out: &PrismOutput) -> Tensor<1> {
     l
 }
 
+/// `config` with the parts switched as given, and the paper's output parameterisation (the
+/// shipped geometric outputs need the point branch and the 3DGS head together).
 fn with(config: &PrismConfig, smplx: bool, points: bool, gs: bool) -> PrismConfig {
-    let mut c = config.clone();
+    let mut c = config.clone().paper_outputs();
     c.smplx_branch = smplx;
     c.point_branch = points;
     c.gs_head = gs;
@@ -266,7 +268,15 @@ fn main() {
         .as_ref()
         .expect("the config has the 3DGS head");
     let gs = time(args.iters, || {
-        let out = head.forward(tokens.clone(), &x.source, &x.views, res, res);
+        let out = head.forward(
+            tokens.clone(),
+            &x.image,
+            &x.source,
+            Some(out.distance.clone()),
+            &x.views,
+            res,
+            res,
+        );
         let _ = out.image.into_data();
     });
     println!();
