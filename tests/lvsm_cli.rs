@@ -6,12 +6,12 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use burn::module::{Module, ModuleVisitor, Param};
+use burn::module::{Module, ModuleVisitor, Param, ParamId};
 use burn::tensor::Tensor;
 use prism_data::BackendKind;
 use prism_model::gaussian_head::{GsColour, GsDepth};
 use prism_model::head::NvsOutput;
-use prism_train::{TrainingConfig, configs_dir, is_head, latest_checkpoint, load_model};
+use prism_train::{TrainingConfig, configs_dir, heads_group_with, latest_checkpoint, load_model};
 
 fn scratch(test: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("prism-lvsm-cli-{}-{test}", std::process::id()));
@@ -24,14 +24,14 @@ fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("crates/prism-model/tests/fixtures/lvsm_tiny.pt")
 }
 
-/// configs/tiny.toml at the fixture's sizes (width 32, 2 heads, patch 8, 2 + 2 blocks) with
-/// the paper's outputs and every geometry part, at 32 px on 4 synthetic subjects; the backbone's
-/// learning rate far below the heads'.
+/// configs/tiny.toml at the fixture's sizes (width 32, 2 heads, patch 8) with 2 + 4 blocks (2
+/// more than the fixture's 4), the paper's outputs and every geometry part, at 32 px on 4
+/// synthetic subjects; the backbone's learning rate far below the heads'.
 fn config(dir: &Path) -> PathBuf {
     let mut c = TrainingConfig::load(configs_dir().join("tiny.toml")).unwrap();
     let m = &mut c.model;
     (m.width, m.heads, m.patch_size) = (32, 2, 8);
-    (m.stage_one_blocks, m.stage_three_blocks) = (2, 2);
+    (m.stage_one_blocks, m.stage_three_blocks) = (2, 4);
     m.resolution = 32;
     m.gs_colour = GsColour::Regressed;
     m.gs_depth = GsDepth::Head;
@@ -115,9 +115,17 @@ fn convert_then_evaluate_then_train_from_the_converted_backbone() {
     );
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("37 tensors mapped"), "{text}");
-    for part in ["smplx_branch", "point_branch", "gs_head", "injection"] {
+    for part in [
+        "smplx_branch",
+        "point_branch",
+        "gs_head",
+        "injection",
+        "stage_three.blocks.2",
+        "stage_three.blocks.3",
+    ] {
         assert!(text.contains(part), "{part} not reported fresh:\n{text}");
     }
+    assert!(text.contains("prism blocks [0, 1, 2, 3]"), "{text}");
 
     // Evaluate, saving every predicted view as SUBJECT/NNN.png.
     let preds = dir.join("preds");
@@ -151,15 +159,17 @@ fn convert_then_evaluate_then_train_from_the_converted_backbone() {
     assert_eq!(names.len(), 3, "{names:?}");
     for name in &names {
         assert!(
-            name.len() == 7 && name.ends_with(".png") && name[..3].bytes().all(|b| b.is_ascii_digit()),
+            name.len() == 7
+                && name.ends_with(".png")
+                && name[..3].bytes().all(|b| b.is_ascii_digit()),
             "{name}"
         );
         let image = image::open(subjects[0].join(name)).unwrap();
         assert_eq!((image.width(), image.height()), (32, 32));
     }
 
-    // Train from the converted checkpoint: the backbone at lr_backbone (1e-12: it stays put),
-    // the geometry parts and heads at lr_heads (1e-2: they move).
+    // Train from the converted checkpoint: LVSM's backbone at lr_backbone (1e-12: it stays
+    // put), the geometry parts, heads and the 2 new blocks at lr_heads (1e-2: they move).
     let run = dir.join("run");
     prism(
         &cache,
@@ -182,20 +192,29 @@ fn convert_then_evaluate_then_train_from_the_converted_backbone() {
     let (after, _) = load_model(&trained, &device).unwrap();
     let (before, after) = (parameters(&before), parameters(&after));
     assert_eq!(before.len(), after.len());
-    let mut moved_heads = 0;
+    let heads = heads_group_with(&[4, 5], 2);
+    let id = ParamId::new();
+    let (mut moved_heads, mut moved_new_blocks) = (0, 0);
     for ((path, a), (_, b)) in before.iter().zip(&after) {
         let change = a
             .iter()
             .zip(b)
             .map(|(x, y)| (x - y).abs())
             .fold(0.0f32, f32::max);
-        if is_head(&format!("{}.{path}", prism_train::TRAINEE_FIELD)) {
+        let trainee_path = format!("{}.{path}", prism_train::TRAINEE_FIELD);
+        if heads.matches(&id, Some(&trainee_path)) {
             moved_heads += usize::from(change > 1e-4);
+            if path.starts_with("stage_three.blocks.") {
+                moved_new_blocks += usize::from(change > 1e-4);
+            }
         } else {
             assert!(change < 1e-7, "backbone parameter {path} moved by {change}");
         }
     }
     assert!(moved_heads >= 2, "the NVS head trains at lr_heads");
+    assert!(moved_new_blocks >= 2, "the new blocks train at lr_heads");
+    let state = std::fs::read_to_string(ckpt.join("state.json")).unwrap();
+    assert!(state.contains("\"new_blocks\""), "{state}");
     // The run's log shows both rates.
     let log = std::fs::read_to_string(run.join(prism_train::METRICS_FILE)).unwrap();
     let step = log

@@ -44,7 +44,8 @@ pub struct ConvertLvsmArgs {
     /// than the checkpoint: `first` (prism's first L blocks: stage I holds LVSM's first M
     /// blocks, so the geometry branches fork from pretrained features), `last`, or a
     /// comma-separated list of L global block indices. The other blocks start as the identity
-    /// (zero output projections), so the converted model computes LVSM's function exactly.
+    /// (zero output projections), so the converted model computes LVSM's function exactly; a run
+    /// started from the checkpoint (`train-teacher --init`) trains them at `lr_heads`.
     #[arg(long, value_name = "first|last|LIST", default_value = "first")]
     blocks: BlockPlacement,
 }

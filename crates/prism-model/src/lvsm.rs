@@ -235,7 +235,14 @@ impl LvsmCheckpoint {
             Err(_) => PytorchReader::new(path).map_err(|e| fail(e.to_string()))?,
         };
         let mut tensors = BTreeMap::new();
+        let mut skipped = Vec::new();
         for (name, tensor) in reader.into_tensors() {
+            let name = canonical_name(&name);
+            if name.starts_with(SKIPPED_PREFIX) {
+                // Not read at all (the perceptual loss's network is large).
+                skipped.push(name);
+                continue;
+            }
             let bytes = tensor.read().map_err(|e| fail(e.to_string()))?;
             let values: Vec<f32> = match tensor.dtype() {
                 PtDType::F32 => bytes
@@ -254,25 +261,21 @@ impl LvsmCheckpoint {
                     .chunks_exact(2)
                     .map(|b| bf16::from_ne_bytes([b[0], b[1]]).to_f32())
                     .collect(),
-                other if name.starts_with(SKIPPED_PREFIX) => {
-                    let _ = other;
-                    Vec::new()
-                }
                 other => {
                     return Err(fail(format!(
                         "tensor `{name}` is {other:?}, not a float tensor"
                     )));
                 }
             };
-            tensors.insert(
-                name,
-                LvsmTensor {
-                    shape: tensor.shape().to_vec(),
-                    values,
-                },
-            );
+            let shape = tensor.shape().to_vec();
+            tensors.insert(name, LvsmTensor { shape, values });
         }
-        Ok(Self::from_tensors(path, tensors))
+        skipped.sort();
+        Ok(Self {
+            path: path.to_path_buf(),
+            tensors,
+            skipped,
+        })
     }
 
     /// A checkpoint from its tensors (state-dict names); `loss_computer.*` is set aside.
@@ -280,12 +283,7 @@ impl LvsmCheckpoint {
         let mut tensors = BTreeMap::new();
         let mut skipped = Vec::new();
         for (name, tensor) in all {
-            // Wrappers' prefixes: DistributedDataParallel's and torch.compile's.
-            let mut name = name.as_str();
-            for prefix in ["module.", "_orig_mod."] {
-                name = name.strip_prefix(prefix).unwrap_or(name);
-            }
-            let name = name.to_string();
+            let name = canonical_name(&name);
             if name.starts_with(SKIPPED_PREFIX) {
                 skipped.push(name);
             } else {
@@ -339,7 +337,13 @@ impl LvsmCheckpoint {
         let layers = self
             .tensors
             .keys()
-            .filter_map(|k| k.strip_prefix(prefix)?.split('.').next()?.parse::<usize>().ok())
+            .filter_map(|k| {
+                k.strip_prefix(prefix)?
+                    .split('.')
+                    .next()?
+                    .parse::<usize>()
+                    .ok()
+            })
             .max()
             .map_or(0, |m| m + 1);
         if layers == 0 {
@@ -385,7 +389,10 @@ impl LvsmCheckpoint {
                 "model.heads",
                 config.heads,
                 layout.heads(),
-                &format!("head count (width {} / head dim {})", layout.width, layout.head_dim),
+                &format!(
+                    "head count (width {} / head dim {})",
+                    layout.width, layout.head_dim
+                ),
             ));
         }
         if config.patch_size != layout.patch_size {
@@ -438,10 +445,20 @@ impl LvsmCheckpoint {
         let source_order = [0, 1, 2, 6, 7, 8, 3, 4, 5];
         let target_order = [3, 4, 5, 0, 1, 2];
         let key = "image_tokenizer.1.weight";
-        let source = Self::permuted_inputs(self.take(&mut used, key, &[d, SOURCE_CHANNELS * p * p])?, &source_order, p, d);
+        let source = Self::permuted_inputs(
+            self.take(&mut used, key, &[d, SOURCE_CHANNELS * p * p])?,
+            &source_order,
+            p,
+            d,
+        );
         set_linear(&mut model.tokenizer.source, &source, device);
         let key = "target_pose_tokenizer.1.weight";
-        let target = Self::permuted_inputs(self.take(&mut used, key, &[d, TARGET_CHANNELS * p * p])?, &target_order, p, d);
+        let target = Self::permuted_inputs(
+            self.take(&mut used, key, &[d, TARGET_CHANNELS * p * p])?,
+            &target_order,
+            p,
+            d,
+        );
         set_linear(&mut model.tokenizer.target, &target, device);
         let gain = self.take(&mut used, "transformer_input_layernorm.weight", &[d])?;
         set_gain(&mut model.tokenizer.norm.gamma, gain, device);
@@ -540,12 +557,7 @@ impl LvsmCheckpoint {
 
     /// A tokenizer weight `[d, p^2 C]` (features `(ph pw c)`) with its channels reordered:
     /// prism's channel `c` reads LVSM's channel `order[c]`.
-    fn permuted_inputs(
-        t: &LvsmTensor,
-        order: &[usize],
-        p: usize,
-        d: usize,
-    ) -> LvsmTensor {
+    fn permuted_inputs(t: &LvsmTensor, order: &[usize], p: usize, d: usize) -> LvsmTensor {
         let channels = order.len();
         let features = p * p * channels;
         let mut values = vec![0.0; d * features];
@@ -562,6 +574,16 @@ impl LvsmCheckpoint {
             values,
         }
     }
+}
+
+/// A state-dict name without the prefixes of PyTorch's wrappers (`module.` of
+/// DistributedDataParallel, `_orig_mod.` of `torch.compile`).
+fn canonical_name(name: &str) -> String {
+    let mut name = name;
+    for prefix in ["module.", "_orig_mod."] {
+        name = name.strip_prefix(prefix).unwrap_or(name);
+    }
+    name.to_string()
 }
 
 /// Sets a Burn `Linear` (`[in, out]`) from a PyTorch weight (`[out, in]`).
@@ -674,6 +696,9 @@ mod tests {
                 .contains("stage_one_blocks + model.stage_three_blocks = 4")
         );
         assert!("middle".parse::<BlockPlacement>().is_err());
-        assert_eq!("first".parse::<BlockPlacement>().unwrap(), BlockPlacement::First);
+        assert_eq!(
+            "first".parse::<BlockPlacement>().unwrap(),
+            BlockPlacement::First
+        );
     }
 }

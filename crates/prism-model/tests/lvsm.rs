@@ -60,7 +60,10 @@ fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
 
 fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
     assert_eq!(a.len(), b.len());
-    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
 }
 
 /// LVSM's Plücker order `(o x d, d)` to prism's `(d, o x d)`.
@@ -86,13 +89,22 @@ fn the_fixture_is_read_with_its_layout() {
     let ckpt = checkpoint();
     let layout = ckpt.layout().unwrap();
     assert_eq!(
-        (layout.width, layout.head_dim, layout.heads(), layout.patch_size),
+        (
+            layout.width,
+            layout.head_dim,
+            layout.heads(),
+            layout.patch_size
+        ),
         (32, 16, 2, 8)
     );
     assert_eq!((layout.layers, layout.mlp_hidden), (4, 128));
     // 4 x 8 block tensors, 2 tokenizers, the input norm, the decoder's norm and linear.
     assert_eq!(ckpt.tensors.len(), 37);
-    assert_eq!(ckpt.skipped.len(), 1, "the perceptual loss's tensor is set aside");
+    assert_eq!(
+        ckpt.skipped.len(),
+        1,
+        "the perceptual loss's tensor is set aside"
+    );
 }
 
 /// With the geometry parts off and `M + N` equal to LVSM's layer count, prism's forward equals
@@ -117,13 +129,12 @@ fn prism_on_lvsm_weights_computes_what_lvsm_computes() {
         assert!(conversion.new_blocks.is_empty());
         assert_eq!(conversion.mapped, 37);
         let fresh: Vec<&str> = conversion.fresh.iter().map(|f| f.module.as_str()).collect();
-        assert_eq!(fresh, ["injection"], "only the zero gate g_res is not LVSM's");
-        let out = model.forward(
-            image.clone(),
-            source_rays.clone(),
-            target_rays.clone(),
-            &[],
+        assert_eq!(
+            fresh,
+            ["injection"],
+            "only the zero gate g_res is not LVSM's"
         );
+        let out = model.forward(image.clone(), source_rays.clone(), target_rays.clone(), &[]);
         assert_eq!(out.image.dims(), [2, 3, 32, 32]);
         let diff = max_abs_diff(&values(out.image), expected);
         assert!(diff < 1e-4, "M = {m}, N = {n}: max abs difference {diff}");
@@ -144,7 +155,10 @@ fn prism_rays_are_lvsm_rays_reordered() {
         width: 32,
         height: 32,
     };
-    for (cams, plucker) in [("source_c2w", "source_plucker"), ("target_c2w", "target_plucker")] {
+    for (cams, plucker) in [
+        ("source_c2w", "source_plucker"),
+        ("target_c2w", "target_plucker"),
+    ] {
         let c2w = &io[cams].1;
         let cameras: Vec<Camera> = c2w
             .chunks_exact(16)
@@ -183,12 +197,7 @@ fn new_blocks_start_as_the_identity() {
             .filter(|f| f.module.starts_with("stage_"))
             .count();
         assert_eq!(fresh_blocks, new.len(), "{:?}", conversion.fresh);
-        let out = model.forward(
-            image.clone(),
-            source_rays.clone(),
-            target_rays.clone(),
-            &[],
-        );
+        let out = model.forward(image.clone(), source_rays.clone(), target_rays.clone(), &[]);
         let diff = max_abs_diff(&values(out.image), &io["render"].1);
         assert!(diff < 1e-4, "{placement}: {diff}");
     }
@@ -249,5 +258,9 @@ fn geometry_parts_are_reported_fresh() {
     for part in ["smplx_branch", "point_branch", "gs_head", "injection"] {
         assert!(fresh.contains(&part), "{part} in {fresh:?}");
     }
-    assert!(!fresh.iter().any(|f| f.starts_with("stage_") || *f == "tokenizer"));
+    assert!(
+        !fresh
+            .iter()
+            .any(|f| f.starts_with("stage_") || *f == "tokenizer")
+    );
 }

@@ -79,6 +79,12 @@ pub struct CheckpointState {
     pub devices: usize,
     /// Backend the run trained on.
     pub backend: String,
+    /// Transformer blocks (global indices) that were newly initialised when the model was made
+    /// from a pretrained one (`prism convert lvsm`, config blocks beyond LVSM's): like the
+    /// geometry parts they train at `lr_heads`, in the run started from that checkpoint with
+    /// `--init` and in its resumes. Empty (and not written) otherwise.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub new_blocks: Vec<usize>,
 }
 
 /// A checkpoint read from disk (its small files; the weights are loaded on demand).
@@ -316,7 +322,8 @@ pub fn write_checkpoint_files(dir: &Path, contents: &CheckpointContents<'_>) -> 
 }
 
 /// Writes a checkpoint folder `dir` holding `model` as step 0 of a run of `config` (fresh
-/// optimizer and schedulers), for `task` (e.g. a converted pretrained model): what
+/// optimizer and schedulers; `new_blocks` as [`CheckpointState::new_blocks`]), for `task`
+/// (e.g. a converted pretrained model): what
 /// `evaluate`, `infer` and `train-teacher --init` read. Written into `DIR.partial` and renamed,
 /// replacing `dir`.
 ///
@@ -328,6 +335,7 @@ pub fn save_model_checkpoint(
     model: &Prism,
     task: &str,
     backend: &str,
+    new_blocks: &[usize],
 ) -> Result<()> {
     let train = &config.train;
     let state = CheckpointState {
@@ -341,6 +349,7 @@ pub fn save_model_checkpoint(
         skipped_steps: 0,
         devices: 1,
         backend: backend.to_string(),
+        new_blocks: new_blocks.to_vec(),
     };
     let optimizer = burn::optim::AdamWConfig::new().init();
     let backbone = crate::schedule::WarmupCosine::new(
@@ -349,9 +358,18 @@ pub fn save_model_checkpoint(
         train.warmup_steps,
         train.steps,
     );
-    let heads =
-        crate::schedule::WarmupCosine::new(train.lr_heads, train.min_lr, train.warmup_steps, train.steps);
-    let scheduler = crate::groups::learning_rates(backbone, heads);
+    let heads = crate::schedule::WarmupCosine::new(
+        train.lr_heads,
+        train.min_lr,
+        train.warmup_steps,
+        train.steps,
+    );
+    let scheduler = crate::groups::learning_rates_with(
+        backbone,
+        heads,
+        new_blocks,
+        config.model.stage_one_blocks,
+    );
     let mut partial = dir.as_os_str().to_owned();
     partial.push(PARTIAL_SUFFIX);
     let partial = PathBuf::from(partial);

@@ -16,7 +16,8 @@ pub const LVSM_TASK: &str = "lvsm";
 /// Reads the LVSM checkpoint `checkpoint` (a PyTorch file), maps it into the model of `config`
 /// (LVSM's blocks into the prism blocks `placement` names; the geometry parts and any new
 /// block keep a fresh initialisation seeded by `train.seed`) and writes the checkpoint folder
-/// `out`, which `evaluate`, `infer` and `train-teacher --init` read.
+/// `out`, which `evaluate`, `infer` and `train-teacher --init` read. The new blocks are
+/// recorded in its `state.json`, so that a run started from it trains them at `lr_heads`.
 ///
 /// # Errors
 /// An unreadable checkpoint, one that does not fit the config (the error names the first
@@ -32,6 +33,13 @@ pub fn convert_lvsm(
     let lvsm = LvsmCheckpoint::read(checkpoint)?;
     device.seed(config.train.seed);
     let (model, conversion) = lvsm.convert(&config.model, placement, &device)?;
-    save_model_checkpoint(out, config, &model, LVSM_TASK, &backend.to_string())?;
+    save_model_checkpoint(
+        out,
+        config,
+        &model,
+        LVSM_TASK,
+        &backend.to_string(),
+        &conversion.new_blocks,
+    )?;
     Ok(conversion)
 }

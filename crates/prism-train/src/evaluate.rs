@@ -10,8 +10,8 @@
 //! head, of its render `I_gs`.
 
 use std::collections::BTreeMap;
-use std::fs;
 use std::fmt::Write as _;
+use std::fs;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 

@@ -55,7 +55,10 @@ pub use evaluate::{
     AngleBin, EvaluateOptions, Evaluation, EvaluationFiles, MeanScores, PerAngle, SubjectGrid,
     evaluate, evaluate_checkpoint, write_evaluation,
 };
-pub use groups::{HEAD_MODULES, heads_group, heads_pattern, is_head, learning_rates};
+pub use groups::{
+    HEAD_MODULES, heads_group, heads_group_with, heads_pattern, heads_pattern_with, is_head,
+    learning_rates, learning_rates_with,
+};
 pub use infer::{
     Framing, InferOptions, InferredPhoto, Sweep, frame_photo, frontal_camera, infer, read_photo,
     sweep_views,
