@@ -82,7 +82,12 @@ fn parameters<M: Module>(module: &M) -> Vec<(String, Vec<f32>)> {
             self.0.pop();
         }
         fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
-            let v = p.val().to_data().convert::<f32>().to_vec::<f32>().unwrap();
+            let v = p
+                .val()
+                .to_data()
+                .convert::<f32>()
+                .try_to_vec::<f32>()
+                .unwrap();
             self.1.push((self.0.join("."), v));
         }
     }
