@@ -133,7 +133,9 @@ mod tests {
             .model
             .with_smplx_branch(false)
             .with_point_branch(false)
-            .with_gs_head(false);
+            .with_gs_head(false)
+            .with_gs_depth(prism_model::gaussian_head::GsDepth::Head)
+            .with_nvs_output(prism_model::head::NvsOutput::Direct);
         let device = prism_data::BackendKind::Ndarray
             .device()
             .unwrap()
