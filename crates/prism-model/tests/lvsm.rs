@@ -284,3 +284,52 @@ fn geometry_parts_are_reported_fresh() {
             .any(|f| f.starts_with("stage_") || *f == "tokenizer")
     );
 }
+
+/// The paper's config fits the published 512 px decoder-only LVSM (width 768, 12 heads of 64,
+/// patch 8, 24 blocks, MLP 3072): shapes only, no weights.
+#[test]
+fn the_paper_config_fits_the_published_layout() {
+    let (d, dh, p, layers) = (768, 64, 8, 24);
+    let mut shapes: Vec<(String, Vec<usize>)> = vec![
+        ("image_tokenizer.1.weight".into(), vec![d, 9 * p * p]),
+        ("target_pose_tokenizer.1.weight".into(), vec![d, 6 * p * p]),
+        ("transformer_input_layernorm.weight".into(), vec![d]),
+        ("image_token_decoder.0.weight".into(), vec![d]),
+        ("image_token_decoder.1.weight".into(), vec![3 * p * p, d]),
+    ];
+    for i in 0..layers {
+        for (part, shape) in [
+            ("norm1.weight", vec![d]),
+            ("attn.to_qkv.weight", vec![3 * d, d]),
+            ("attn.q_norm.weight", vec![dh]),
+            ("attn.k_norm.weight", vec![dh]),
+            ("attn.fc.weight", vec![d, d]),
+            ("norm2.weight", vec![d]),
+            ("mlp.mlp.0.weight", vec![4 * d, d]),
+            ("mlp.mlp.2.weight", vec![d, 4 * d]),
+        ] {
+            shapes.push((format!("module.transformer_blocks.{i}.{part}"), shape));
+        }
+    }
+    let tensors = shapes
+        .into_iter()
+        .map(|(name, shape)| {
+            let tensor = prism_model::lvsm::LvsmTensor {
+                shape,
+                values: Vec::new(),
+            };
+            (name, tensor)
+        })
+        .collect();
+    let ckpt =
+        LvsmCheckpoint::from_tensors(Path::new("lvsm_scene_decoder_only_res512.pt"), tensors);
+    let paper = prism_model::load_config(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/paper.toml"),
+    )
+    .unwrap()
+    .model;
+    let (layout, placement) = ckpt.check_fits(&paper, &BlockPlacement::First).unwrap();
+    assert_eq!(layout.heads(), 12);
+    assert_eq!(placement, (0..24).collect::<Vec<_>>());
+    assert_eq!(paper.num_blocks(), 36);
+}
