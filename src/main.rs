@@ -35,6 +35,9 @@ enum Command {
     /// 3D Gaussian splatting: render standard 3DGS PLY files.
     #[command(subcommand)]
     Splat(commands::splat::SplatCommand),
+    /// Convert pretrained models into prism checkpoints (`convert lvsm`).
+    #[command(subcommand)]
+    Convert(commands::convert::ConvertCommand),
     /// Train the full-attention teacher (AdamW, warm-up + cosine, checkpoints, validation).
     TrainTeacher(commands::train::TrainTeacherArgs),
     /// Distil the linear-attention student from a teacher (progressive schedule, ablations).
@@ -57,6 +60,7 @@ fn main() {
         Command::Bench(args) => args.run(),
         Command::Metrics(args) => args.run(),
         Command::Splat(cmd) => cmd.run(),
+        Command::Convert(cmd) => cmd.run(),
         Command::TrainTeacher(args) => args.run(),
         Command::DistillStudent(args) => args.run(),
         Command::Evaluate(args) => args.run(),

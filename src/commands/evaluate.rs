@@ -42,6 +42,10 @@ pub struct EvaluateArgs {
     /// Folder for evaluation.json, report.md and grids/ [default: CHECKPOINT/evaluation].
     #[arg(long, value_name = "DIR", requires = "checkpoint")]
     out: Option<PathBuf>,
+    /// Also write every predicted target view as DIR/SUBJECT/NNN.png (NNN the view index, 3
+    /// digits), to score against other methods with --pred/--gt.
+    #[arg(long, value_name = "DIR", requires = "checkpoint")]
+    save_predictions: Option<PathBuf>,
     /// Target views per subject, evenly spread over 1..=100 (100 is the paper's protocol).
     #[arg(long, default_value_t = 100, value_name = "N", value_parser = clap::value_parser!(u16).range(1..=100))]
     views: u16,
@@ -78,6 +82,7 @@ impl EvaluateArgs {
             views: usize::from(self.views),
             batch: usize::from(self.batch),
             progress: !self.quiet,
+            save_predictions: self.save_predictions.clone(),
             ..EvaluateOptions::default()
         };
         let (e, files) = evaluate_checkpoint(
@@ -113,6 +118,9 @@ impl EvaluateArgs {
             "  copy source (view 0): PSNR {:.3} dB  SSIM {:.4}  LPIPS {:.4}",
             c.psnr, c.ssim, c.lpips
         );
+        if let Some(dir) = &self.save_predictions {
+            println!("predictions: {}", dir.display());
+        }
         println!("report: {}", files.report.display());
         println!("scores: {}", files.json.display());
         if let Some(grid) = files.grids.first() {

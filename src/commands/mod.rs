@@ -3,6 +3,7 @@
 
 pub mod bench;
 pub mod body;
+pub mod convert;
 pub mod data;
 pub mod distill;
 pub mod evaluate;

@@ -36,6 +36,14 @@ pub enum ModelError {
     /// Exporting predicted Gaussians failed.
     #[error("{0}")]
     Render(#[from] prism_render::RenderError),
+    /// An LVSM checkpoint that cannot be read, or does not fit the config (see `lvsm.rs`).
+    #[error("LVSM checkpoint {path}: {message}")]
+    Lvsm {
+        /// The checkpoint file.
+        path: PathBuf,
+        /// What is wrong: the first mismatch with the config, a tensor prism has no place for.
+        message: String,
+    },
     /// [`ModelError::Invalid`] found in a file.
     #[error("{path}: invalid value of `{field}`: {message}")]
     InvalidInFile {

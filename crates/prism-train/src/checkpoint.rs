@@ -79,6 +79,12 @@ pub struct CheckpointState {
     pub devices: usize,
     /// Backend the run trained on.
     pub backend: String,
+    /// Transformer blocks (global indices) that were newly initialised when the model was made
+    /// from a pretrained one (`prism convert lvsm`, config blocks beyond LVSM's): like the
+    /// geometry parts they train at `lr_heads`, in the run started from that checkpoint with
+    /// `--init` and in its resumes. Empty (and not written) otherwise.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub new_blocks: Vec<usize>,
 }
 
 /// A checkpoint read from disk (its small files; the weights are loaded on demand).
@@ -279,6 +285,113 @@ pub struct CheckpointContents<'a> {
     pub scheduler: &'a ModuleLrScheduler,
 }
 
+/// Writes the files of a checkpoint (see the module docs) into the folder `dir`, created if
+/// needed.
+///
+/// # Errors
+/// I/O or serialisation errors, naming the file.
+pub fn write_checkpoint_files(dir: &Path, contents: &CheckpointContents<'_>) -> Result<()> {
+    fs::create_dir_all(dir).map_err(|e| TrainError::io(dir, e))?;
+    let record_error = |file: &str, e: burn::store::RecordError| {
+        TrainError::checkpoint(dir.join(file), e.to_string())
+    };
+    contents
+        .model
+        .clone()
+        .save_file(dir.join(files::MODEL))
+        .map_err(|e| record_error(files::MODEL, e))?;
+    contents
+        .optimizer
+        .to_record()
+        .save(dir.join(files::OPTIMIZER))
+        .map_err(|e| record_error(files::OPTIMIZER, e))?;
+    contents
+        .scheduler
+        .to_record()
+        .save(dir.join(files::SCHEDULER))
+        .map_err(|e| record_error(files::SCHEDULER, e))?;
+    write_json(
+        &dir.join(files::ATTENTION),
+        &contents.model.attention_kinds(),
+    )?;
+    write_json(&dir.join(files::STATE), contents.state)?;
+    let config_path = dir.join(files::CONFIG);
+    fs::write(&config_path, contents.config.to_toml())
+        .map_err(|e| TrainError::io(&config_path, e))?;
+    Ok(())
+}
+
+/// Writes a checkpoint folder `dir` holding `model` as step 0 of a run of `config` (fresh
+/// optimizer and schedulers; `new_blocks` as [`CheckpointState::new_blocks`]), for `task`
+/// (e.g. a converted pretrained model): what
+/// `evaluate`, `infer` and `train-teacher --init` read. Written into `DIR.partial` and renamed,
+/// replacing `dir`.
+///
+/// # Errors
+/// I/O or serialisation errors.
+pub fn save_model_checkpoint(
+    dir: &Path,
+    config: &TrainingConfig,
+    model: &Prism,
+    task: &str,
+    backend: &str,
+    new_blocks: &[usize],
+) -> Result<()> {
+    let train = &config.train;
+    let state = CheckpointState {
+        format: CHECKPOINT_FORMAT.to_string(),
+        version: CHECKPOINT_VERSION,
+        task: task.to_string(),
+        step: 0,
+        total_steps: train.steps,
+        seed: train.seed,
+        non_finite_in_row: 0,
+        skipped_steps: 0,
+        devices: 1,
+        backend: backend.to_string(),
+        new_blocks: new_blocks.to_vec(),
+    };
+    let optimizer = burn::optim::AdamWConfig::new().init();
+    let backbone = crate::schedule::WarmupCosine::new(
+        train.lr_backbone,
+        train.min_lr,
+        train.warmup_steps,
+        train.steps,
+    );
+    let heads = crate::schedule::WarmupCosine::new(
+        train.lr_heads,
+        train.min_lr,
+        train.warmup_steps,
+        train.steps,
+    );
+    let scheduler = crate::groups::learning_rates_with(
+        backbone,
+        heads,
+        new_blocks,
+        config.model.stage_one_blocks,
+    );
+    let mut partial = dir.as_os_str().to_owned();
+    partial.push(PARTIAL_SUFFIX);
+    let partial = PathBuf::from(partial);
+    if partial.exists() {
+        fs::remove_dir_all(&partial).map_err(|e| TrainError::io(&partial, e))?;
+    }
+    write_checkpoint_files(
+        &partial,
+        &CheckpointContents {
+            state: &state,
+            config,
+            model,
+            optimizer: &optimizer,
+            scheduler: &scheduler,
+        },
+    )?;
+    if dir.exists() {
+        fs::remove_dir_all(dir).map_err(|e| TrainError::io(dir, e))?;
+    }
+    fs::rename(&partial, dir).map_err(|e| TrainError::io(dir, e))
+}
+
 /// Writes the checkpoint of `contents.state.step` into `run` atomically, then keeps only the
 /// newest `keep` checkpoints. Returns the checkpoint folder.
 ///
@@ -297,33 +410,7 @@ pub fn save_checkpoint(
     if partial.exists() {
         fs::remove_dir_all(&partial).map_err(|e| TrainError::io(&partial, e))?;
     }
-    fs::create_dir_all(&partial).map_err(|e| TrainError::io(&partial, e))?;
-    let record_error = |file: &str, e: burn::store::RecordError| {
-        TrainError::checkpoint(partial.join(file), e.to_string())
-    };
-    contents
-        .model
-        .clone()
-        .save_file(partial.join(files::MODEL))
-        .map_err(|e| record_error(files::MODEL, e))?;
-    contents
-        .optimizer
-        .to_record()
-        .save(partial.join(files::OPTIMIZER))
-        .map_err(|e| record_error(files::OPTIMIZER, e))?;
-    contents
-        .scheduler
-        .to_record()
-        .save(partial.join(files::SCHEDULER))
-        .map_err(|e| record_error(files::SCHEDULER, e))?;
-    write_json(
-        &partial.join(files::ATTENTION),
-        &contents.model.attention_kinds(),
-    )?;
-    write_json(&partial.join(files::STATE), contents.state)?;
-    let config_path = partial.join(files::CONFIG);
-    fs::write(&config_path, contents.config.to_toml())
-        .map_err(|e| TrainError::io(&config_path, e))?;
+    write_checkpoint_files(&partial, contents)?;
     if dir.exists() {
         fs::remove_dir_all(&dir).map_err(|e| TrainError::io(&dir, e))?;
     }

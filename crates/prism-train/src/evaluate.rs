@@ -11,6 +11,7 @@
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
+use std::fs;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -60,6 +61,9 @@ pub struct EvaluateOptions {
     pub fps_runs: usize,
     /// Draw a progress bar on stderr.
     pub progress: bool,
+    /// Write every predicted target view as `DIR/SUBJECT/NNN.png` (`NNN` the view index, 3
+    /// digits), for scoring against other methods with `evaluate --pred/--gt`.
+    pub save_predictions: Option<PathBuf>,
 }
 
 impl Default for EvaluateOptions {
@@ -70,6 +74,7 @@ impl Default for EvaluateOptions {
             grid_views: 4,
             fps_runs: 10,
             progress: false,
+            save_predictions: None,
         }
     }
 }
@@ -335,6 +340,10 @@ pub fn evaluate(
     for (s, subject) in subjects.iter().enumerate() {
         bar.set_message(subject.clone());
         let mut grid_rows = Vec::new();
+        let predictions_dir = options.save_predictions.as_ref().map(|d| d.join(subject));
+        if let Some(dir) = &predictions_dir {
+            fs::create_dir_all(dir).map_err(|e| TrainError::io(dir, e))?;
+        }
         for chunk in views.chunks(options.batch.max(1)) {
             let samples = chunk
                 .iter()
@@ -363,6 +372,10 @@ pub fn evaluate(
                 copy.add(subject, yaw, pitch, copy_scores[i]);
                 if let Some(g) = &gs_scores {
                     gs.add(subject, yaw, pitch, g[i]);
+                }
+                if let Some(dir) = &predictions_dir {
+                    let path = dir.join(format!("{:03}.png", target.index));
+                    save_png(&path, &pred_host.rgb8(i))?;
                 }
                 if grid_views.contains(&target.index) {
                     let (w, h) = (pred_host.width, pred_host.height);

@@ -4,7 +4,9 @@
 //! The split is by module path. A parameter is a head parameter when its path starts with one
 //! of [`HEAD_MODULES`] (a field of [`prism_model::Prism`]); everything else (tokenizer and
 //! transformer blocks) is backbone. The parts the paper adds to the LVSM backbone (the heads,
-//! the geometry branches and the injection's zero-convs and gates) are all "heads".
+//! the geometry branches and the injection's zero-convs and gates) are all "heads", and so are
+//! the transformer blocks a converted pretrained model adds to LVSM's (`new_blocks` of the
+//! checkpoint it was started from).
 
 use burn::module::ParamGroup;
 use burn::optim::lr_scheduler::module_lr_scheduler::ModuleLrScheduler;
@@ -25,12 +27,33 @@ pub const HEAD_MODULES: &[&str] = &[
 /// The regular expression of head parameter paths (paths as Burn's module visitors and
 /// optimizer see them from the [`crate::Trainee`], e.g. `prism.nvs_head.linear.weight`).
 pub fn heads_pattern() -> String {
-    format!(r"^{TRAINEE_FIELD}\.({})\.", HEAD_MODULES.join("|"))
+    heads_pattern_with(&[], 0)
+}
+
+/// [`heads_pattern`] plus the newly initialised transformer blocks `new_blocks` (global
+/// indices; `stage_one` = `M` blocks are stage I's) of a model made from a pretrained backbone
+/// (see [`crate::CheckpointState::new_blocks`]).
+pub fn heads_pattern_with(new_blocks: &[usize], stage_one: usize) -> String {
+    let mut parts: Vec<String> = HEAD_MODULES.iter().map(|m| m.to_string()).collect();
+    for &b in new_blocks {
+        parts.push(if b < stage_one {
+            format!(r"stage_one\.blocks\.{b}")
+        } else {
+            format!(r"stage_three\.blocks\.{}", b - stage_one)
+        });
+    }
+    format!(r"^{TRAINEE_FIELD}\.({})\.", parts.join("|"))
 }
 
 /// The head parameters as a Burn [`ParamGroup`].
 pub fn heads_group() -> ParamGroup {
-    ParamGroup::from_regex(heads_pattern()).expect("the heads pattern is a valid regex")
+    heads_group_with(&[], 0)
+}
+
+/// The head parameters and those of the new blocks (see [`heads_pattern_with`]).
+pub fn heads_group_with(new_blocks: &[usize], stage_one: usize) -> ParamGroup {
+    ParamGroup::from_regex(heads_pattern_with(new_blocks, stage_one))
+        .expect("the heads pattern is a valid regex")
 }
 
 /// Whether the parameter at `path` is a head parameter.
@@ -46,7 +69,18 @@ pub fn is_head(path: &str) -> bool {
 /// The per-group learning-rate scheduler: `backbone` for every parameter, `heads` for the
 /// [`heads_group`] (Burn's [`ModuleLrScheduler`]: the last matching group wins).
 pub fn learning_rates(backbone: WarmupCosine, heads: WarmupCosine) -> ModuleLrScheduler {
-    ModuleLrScheduler::new(backbone).with_group(heads_group(), heads)
+    learning_rates_with(backbone, heads, &[], 0)
+}
+
+/// [`learning_rates`] with the new blocks of a model made from a pretrained backbone in the
+/// heads' group (see [`heads_group_with`]).
+pub fn learning_rates_with(
+    backbone: WarmupCosine,
+    heads: WarmupCosine,
+    new_blocks: &[usize],
+    stage_one: usize,
+) -> ModuleLrScheduler {
+    ModuleLrScheduler::new(backbone).with_group(heads_group_with(new_blocks, stage_one), heads)
 }
 
 #[cfg(test)]
@@ -68,6 +102,21 @@ mod tests {
         assert!(!group.matches(&id, Some("prism.stage_three.blocks.3.mlp.fc_in.weight")));
     }
 
+    #[test]
+    fn new_blocks_join_the_heads() {
+        let group = heads_group_with(&[1, 4, 5], 2);
+        let id = burn::module::ParamId::new();
+        let matches = |path: &str| group.matches(&id, Some(path));
+        assert!(matches("prism.stage_one.blocks.1.attention.qkv.weight"));
+        assert!(matches("prism.stage_three.blocks.2.mlp.fc_out.weight"));
+        assert!(matches("prism.stage_three.blocks.3.attention_norm.gamma"));
+        assert!(matches("prism.nvs_head.linear.weight"));
+        assert!(!matches("prism.stage_one.blocks.0.attention.qkv.weight"));
+        assert!(!matches("prism.stage_three.blocks.1.mlp.fc_in.weight"));
+        assert!(!matches("prism.stage_three.blocks.23.mlp.fc_in.weight"));
+        assert!(!matches("prism.tokenizer.source.weight"));
+    }
+
     /// The optimizer applies each group's rate: with a backbone rate of 0 only the heads move.
     #[test]
     fn the_optimizer_uses_the_heads_rate_for_head_parameters_only() {
@@ -84,7 +133,9 @@ mod tests {
             .model
             .with_smplx_branch(false)
             .with_point_branch(false)
-            .with_gs_head(false);
+            .with_gs_head(false)
+            .with_gs_depth(prism_model::gaussian_head::GsDepth::Head)
+            .with_nvs_output(prism_model::head::NvsOutput::Direct);
         let device = prism_data::BackendKind::Ndarray
             .device()
             .unwrap()

@@ -20,6 +20,7 @@ pub mod cache;
 pub mod checkpoint;
 pub mod clip;
 pub mod config;
+pub mod convert;
 pub mod data;
 pub mod error;
 pub mod evaluate;
@@ -42,17 +43,22 @@ pub mod validate;
 pub use cache::{CACHE_ENV, cache_dir, ensure_synthetic_dataset, synthetic_dataset_dir};
 pub use checkpoint::{
     CHECKPOINTS_DIR, Checkpoint, CheckpointContents, CheckpointState, checkpoint_dir,
-    latest_checkpoint, list_checkpoints, load_model, save_checkpoint,
+    latest_checkpoint, list_checkpoints, load_model, save_checkpoint, save_model_checkpoint,
+    write_checkpoint_files,
 };
 pub use clip::{clip_global_norm, global_norm, parameter_values};
 pub use config::{SyntheticDataConfig, TrainConfig, TrainingConfig, config_name, configs_dir};
+pub use convert::{LVSM_TASK, convert_lvsm};
 pub use data::{DataOrder, Prefetcher};
 pub use error::TrainError;
 pub use evaluate::{
     AngleBin, EvaluateOptions, Evaluation, EvaluationFiles, MeanScores, PerAngle, SubjectGrid,
     evaluate, evaluate_checkpoint, write_evaluation,
 };
-pub use groups::{HEAD_MODULES, heads_group, heads_pattern, is_head, learning_rates};
+pub use groups::{
+    HEAD_MODULES, heads_group, heads_group_with, heads_pattern, heads_pattern_with, is_head,
+    learning_rates, learning_rates_with,
+};
 pub use infer::{
     Framing, InferOptions, InferredPhoto, Sweep, frame_photo, frontal_camera, infer, read_photo,
     sweep_views,

@@ -32,7 +32,7 @@ use crate::clip::clip_global_norm;
 use crate::config::TrainingConfig;
 use crate::data::{DataOrder, Prefetcher};
 use crate::error::{Result, TrainError};
-use crate::groups::learning_rates;
+use crate::groups::learning_rates_with;
 use crate::log::MetricsLog;
 use crate::parallel::{DataParallel, training_devices};
 use crate::plot::plot_run;
@@ -203,7 +203,7 @@ pub fn train(config: &TrainingConfig, task: &dyn Task, options: &RunOptions) -> 
     let devices = training_devices(options.backend, options.devices)?;
     let main = devices[0].clone();
     let inference = main.clone().inner();
-    let (prism, start) = initial_model(&config, resumed.as_ref(), options, &main)?;
+    let (prism, start, new_blocks) = initial_model(&config, resumed.as_ref(), options, &main)?;
     let total = train.steps;
     if start >= total {
         return Err(TrainError::RunFolder {
@@ -226,7 +226,8 @@ pub fn train(config: &TrainingConfig, task: &dyn Task, options: &RunOptions) -> 
         .init();
     let backbone = WarmupCosine::new(train.lr_backbone, train.min_lr, train.warmup_steps, total);
     let heads = WarmupCosine::new(train.lr_heads, train.min_lr, train.warmup_steps, total);
-    let mut scheduler = learning_rates(backbone, heads);
+    let mut scheduler =
+        learning_rates_with(backbone, heads, &new_blocks, config.model.stage_one_blocks);
     if let Some(checkpoint) = &resumed {
         optimizer = checkpoint.load_optimizer(optimizer)?;
         scheduler = checkpoint.load_scheduler(scheduler)?;
@@ -376,6 +377,7 @@ pub fn train(config: &TrainingConfig, task: &dyn Task, options: &RunOptions) -> 
                 skipped_steps: summary.skipped_steps,
                 devices: devices.len(),
                 backend: options.backend.to_string(),
+                new_blocks: new_blocks.clone(),
             };
             let contents = CheckpointContents {
                 state: &state,
@@ -447,24 +449,33 @@ fn prepare_run_folder(
     Ok(Some(checkpoint))
 }
 
-/// The model to start from and its step: the resumed checkpoint's, `--init`'s weights, or a
-/// fresh initialisation seeded by `train.seed`.
+/// The model to start from, its step and its newly initialised blocks (which train at
+/// `lr_heads`, see [`CheckpointState::new_blocks`]): the resumed checkpoint's, `--init`'s
+/// weights, or a fresh initialisation seeded by `train.seed`.
 fn initial_model(
     config: &TrainingConfig,
     resumed: Option<&Checkpoint>,
     options: &RunOptions,
     device: &Device,
-) -> Result<(Prism, usize)> {
+) -> Result<(Prism, usize, Vec<usize>)> {
     if let Some(checkpoint) = resumed {
-        return Ok((checkpoint.load_model(device)?, checkpoint.state.step));
+        return Ok((
+            checkpoint.load_model(device)?,
+            checkpoint.state.step,
+            checkpoint.state.new_blocks.clone(),
+        ));
     }
     if let Some(init) = &options.init {
         let checkpoint = Checkpoint::read(init)?;
         check_architecture(&checkpoint, &config.model)?;
-        return Ok((checkpoint.load_model(device)?, 0));
+        return Ok((
+            checkpoint.load_model(device)?,
+            0,
+            checkpoint.state.new_blocks.clone(),
+        ));
     }
     device.seed(config.train.seed);
-    Ok((config.model.init(device), 0))
+    Ok((config.model.init(device), 0, Vec::new()))
 }
 
 /// Splits a step's samples into one share per device (consecutive samples, sizes differing by
