@@ -7,14 +7,18 @@
 //! left to the image loss, which learns it slowly and only where a wrong pixel shows.
 
 use burn::tensor::Tensor;
-use burn::tensor::activation::relu;
+use burn::tensor::activation::log_sigmoid;
 
 /// Mean binary cross-entropy between `sigmoid(logits)` and `target`, both `[B, N, 1]` (targets
 /// in [0, 1], e.g. a soft foreground mask), `[1]`:
-/// `mean(max(x, 0) - x m + log(1 + exp(-|x|)))`, the form that never overflows.
+/// `-mean(m log sigmoid(x) + (1 - m) log sigmoid(-x))`, through the stable `log_sigmoid`. (The
+/// form `max(x, 0) - x m + log(1 + exp(-|x|))` has the right value but, through the kinks of
+/// `max` and `|x|`, the gradient `-m` instead of `1/2 - m` at exactly `x = 0`, where
+/// zero-initialised logits start.)
 pub fn opacity_loss(logits: Tensor<3>, target: Tensor<3>) -> Tensor<1> {
-    let softplus = relu(logits.clone()) + logits.clone().abs().neg().exp().log1p();
-    (softplus - logits * target).mean()
+    let inside = log_sigmoid(logits.clone()) * target.clone();
+    let outside = log_sigmoid(logits.neg()) * target.neg().add_scalar(1.0);
+    (inside + outside).mean().neg()
 }
 
 /// A foreground mask `[B, 1, H, W]` as one row per pixel, `[B, H W, 1]` (the order of the 3DGS
@@ -33,11 +37,11 @@ mod tests {
     #[test]
     fn matches_the_cross_entropy_formula_and_its_gradient() {
         let device = BackendKind::Ndarray.device().unwrap().autodiff();
-        let x = [-30.0f32, -2.0, -0.3, 0.0, 0.7, 3.0, 40.0];
-        let m = [0.0f32, 1.0, 0.25, 1.0, 0.0, 1.0, 0.0];
+        let x = [-30.0f32, -2.0, -0.3, 0.0, 0.0, 0.7, 3.0, 40.0];
+        let m = [0.0f32, 1.0, 0.25, 1.0, 0.0, 0.0, 1.0, 0.0];
         let logits =
-            Tensor::<3>::from_data(TensorData::new(x.to_vec(), [1, 7, 1]), &device).require_grad();
-        let target = Tensor::<3>::from_data(TensorData::new(m.to_vec(), [1, 7, 1]), &device);
+            Tensor::<3>::from_data(TensorData::new(x.to_vec(), [1, 8, 1]), &device).require_grad();
+        let target = Tensor::<3>::from_data(TensorData::new(m.to_vec(), [1, 8, 1]), &device);
         let loss = opacity_loss(logits.clone(), target);
         let sig = |v: f64| 1.0 / (1.0 + (-v).exp());
         let expected: f64 = x
@@ -49,7 +53,7 @@ mod tests {
                 m * (-x).exp().ln_1p() + (1.0 - m) * x.exp().ln_1p()
             })
             .sum::<f64>()
-            / 7.0;
+            / 8.0;
         let value = loss.clone().into_scalar::<f64>();
         assert!((value - expected).abs() < 1e-5, "{value} vs {expected}");
         // d/dx = (sigmoid(x) - m) / N.
@@ -61,7 +65,7 @@ mod tests {
             .to_vec::<f32>()
             .unwrap();
         for ((&g, &x), &m) in g.iter().zip(&x).zip(&m) {
-            let want = (sig(x as f64) - m as f64) / 7.0;
+            let want = (sig(x as f64) - m as f64) / 8.0;
             assert!((g as f64 - want).abs() < 1e-6, "{g} vs {want} at {x}");
         }
     }
