@@ -2,6 +2,8 @@
 //! backend), with a tiny teacher trained for a few steps on a tiny synthetic dataset in a
 //! private cache folder.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::OnceLock;
@@ -91,21 +93,6 @@ fn s(p: &Path) -> &str {
 
 fn read_json(path: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
-}
-
-/// PSNR (dB) of two 8-bit RGB images as the metric defines it: `10 log10(1 / MSE)` over all
-/// pixels and channels, values in [0, 1].
-fn psnr_of(a: &image::RgbImage, b: &image::RgbImage) -> f64 {
-    assert_eq!(a.dimensions(), b.dimensions());
-    let n = (a.width() * a.height() * 3) as f64;
-    let mse = a
-        .as_raw()
-        .iter()
-        .zip(b.as_raw())
-        .map(|(&x, &y)| ((x as f64 - y as f64) / 255.0).powi(2))
-        .sum::<f64>()
-        / n;
-    10.0 * (1.0 / mse).log10()
 }
 
 /// The folder of the tiny synthetic dataset in the test's cache.
@@ -200,7 +187,10 @@ fn evaluate_writes_every_key_the_report_and_the_grids() {
             .to_rgb8()
     };
     let source = rgb(0);
-    let expected = (1..=100).map(|t| psnr_of(&source, &rgb(t))).sum::<f64>() / 100.0;
+    let expected = (1..=100)
+        .map(|t| common::psnr_8bit(&source, &rgb(t)))
+        .sum::<f64>()
+        / 100.0;
     let got = copy["psnr"].as_f64().unwrap();
     assert!(
         (got - expected).abs() < 1e-3,

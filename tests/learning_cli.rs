@@ -5,6 +5,8 @@
 //! sweep's views. (The tiny model, 5 training people at 64 px, is below copying at 10 and 20
 //! degrees of that sweep: BENCHMARKS.md, "Learning from scratch".)
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -37,19 +39,6 @@ fn prism(cache: &Path, args: &[&str]) -> String {
     );
     assert!(out.status.success(), "prism {args:?}:\n{text}");
     text
-}
-
-/// PSNR of two 8-bit images (data range 1).
-fn psnr(a: &RgbImage, b: &RgbImage) -> f64 {
-    assert_eq!(a.dimensions(), b.dimensions());
-    let mse = a
-        .as_raw()
-        .iter()
-        .zip(b.as_raw())
-        .map(|(&x, &y)| ((x as f64 - y as f64) / 255.0).powi(2))
-        .sum::<f64>()
-        / a.as_raw().len() as f64;
-    10.0 * (1.0 / mse).log10()
 }
 
 /// The synthetic person `index` of the config's dataset, rendered in the protocol camera of
@@ -183,7 +172,10 @@ fn prism_infer_turns_a_held_out_person_better_than_copying() {
         let predicted = image::open(views_dir.join(view_file_name(view)))
             .unwrap()
             .to_rgb8();
-        let (m, c) = (psnr(&predicted, &truth), psnr(&source, &truth));
+        let (m, c) = (
+            common::psnr_8bit(&predicted, &truth),
+            common::psnr_8bit(&source, &truth),
+        );
         println!(
             "yaw {:+.0}: model {m:.3} dB, copy-source {c:.3} dB",
             view.yaw_deg
@@ -194,7 +186,7 @@ fn prism_infer_turns_a_held_out_person_better_than_copying() {
     assert_eq!(views.first().unwrap().yaw_deg, -30.0);
     assert_eq!(views.last().unwrap().yaw_deg, 30.0);
     // The frontal view of the sweep is the photo itself: the ground truth is right.
-    assert!(psnr(&source, &ground_truth(&config, held_out, 0.0)) > 40.0);
+    assert!(common::psnr_8bit(&source, &ground_truth(&config, held_out, 0.0)) > 40.0);
     println!("turned views' mean: model {model:.3} dB, copy-source {copying:.3} dB");
     assert!(
         model > copying,

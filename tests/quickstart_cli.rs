@@ -3,6 +3,8 @@
 //! test takes about a minute on 2 cores; no GPU); then the framing `prism infer` gives photos
 //! is checked against the synthesised people.
 
+mod common;
+
 use std::process::Command;
 
 use prism_train::infer::{PERSON_CENTRE_Y, PERSON_HEIGHT_FRACTION};
@@ -72,16 +74,7 @@ fn quickstart_fast_runs_end_to_end() {
         assert_eq!(gs.len(), 3);
         assert!((gs[0] - json["gs"]["psnr"].as_f64().unwrap()).abs() < 1e-3);
         // The run folder has its training curves, drawn (not blank), and the evaluation a copy.
-        let plot = image::open(out_dir.join(model).join(prism_train::PLOT_FILE))
-            .unwrap()
-            .to_rgb8();
-        assert_eq!(plot.dimensions(), prism_train::PLOT_SIZE);
-        let drawn = plot.pixels().filter(|p| p.0 != [255, 255, 255]).count();
-        let total = plot.pixels().len();
-        assert!(
-            drawn > total / 50 && drawn < total / 2,
-            "{drawn} of {total}"
-        );
+        common::assert_training_curves(&out_dir.join(model).join(prism_train::PLOT_FILE));
         assert!(eval.join("training-curves.png").is_file());
         assert!(stdout.contains(&format!("{model} training curves: ")));
     }

@@ -1,6 +1,8 @@
 //! End-to-end tests of `prism train-teacher` through the built binary (ndarray backend), on the
 //! tiny config and a tiny synthetic dataset in a private cache folder.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::sync::OnceLock;
@@ -208,16 +210,7 @@ fn train_teacher_learns_on_the_synthetic_people() {
         assert!(stdout.contains(expected), "{expected}: {stdout}");
     }
     // The training curves: a PNG of the expected size with the curves drawn on white.
-    let plot = image::open(run_dir.join(prism_train::PLOT_FILE))
-        .unwrap()
-        .to_rgb8();
-    assert_eq!(plot.dimensions(), prism_train::PLOT_SIZE);
-    let drawn = plot.pixels().filter(|p| p.0 != [255, 255, 255]).count();
-    let total = plot.pixels().len();
-    assert!(
-        drawn > total / 50 && drawn < total / 2,
-        "{drawn} of {total}"
-    );
+    common::assert_training_curves(&run_dir.join(prism_train::PLOT_FILE));
     let lines = read_metrics(&run_dir.join("metrics.jsonl")).unwrap();
     let losses: Vec<f64> = lines.iter().filter_map(|l| l["loss"].as_f64()).collect();
     assert_eq!(losses.len(), 150);

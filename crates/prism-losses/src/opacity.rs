@@ -62,7 +62,7 @@ mod tests {
             .grad(&grads)
             .unwrap()
             .into_data()
-            .to_vec::<f32>()
+            .try_into_vec_as::<f32>()
             .unwrap();
         for ((&g, &x), &m) in g.iter().zip(&x).zip(&m) {
             let want = (sig(x as f64) - m as f64) / 8.0;
@@ -80,7 +80,7 @@ mod tests {
         let rows = mask_rows(mask);
         assert_eq!(rows.dims(), [1, 6, 1]);
         assert_eq!(
-            rows.into_data().to_vec::<f32>().unwrap(),
+            rows.into_data().try_into_vec_as::<f32>().unwrap(),
             vec![0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
         );
     }

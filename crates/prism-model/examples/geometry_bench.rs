@@ -15,7 +15,9 @@ use std::time::Instant;
 use burn::tensor::{Device, Distribution, Tensor};
 use prism_data::BackendKind;
 use prism_data::rays::plucker_rays;
-use prism_model::{Prism, PrismConfig, PrismOutput, Views, load_config, protocol_views};
+use prism_model::{
+    Prism, PrismConfig, PrismOutput, SourcePixels, Views, load_config, protocol_views,
+};
 use prism_render::triplane::sample_triplane;
 
 struct Args {
@@ -268,15 +270,12 @@ fn main() {
         .as_ref()
         .expect("the config has the 3DGS head");
     let gs = time(args.iters, || {
-        let out = head.forward(
-            tokens.clone(),
-            &x.image,
-            &x.source,
-            Some(out.distance.clone()),
-            &x.views,
-            res,
-            res,
-        );
+        let source = SourcePixels {
+            image: &x.image,
+            rays: &x.source,
+            distance: Some(out.distance.clone()),
+        };
+        let out = head.forward(tokens.clone(), source, &x.views, res, res);
         let _ = out.image.into_data();
     });
     println!();

@@ -232,6 +232,18 @@ impl GaussianOutput {
     }
 }
 
+/// What the 3DGS head reads per source pixel besides the tokens.
+#[derive(Clone, Debug)]
+pub struct SourcePixels<'a> {
+    /// The source image `[B, 3, H_s, W_s]` in [0, 1] (colours with `gs_colour = "source"` or
+    /// `"flow"`, the key with `gs_keying`).
+    pub image: &'a Tensor<4>,
+    /// The source rays `[B, 6, H_s, W_s]`.
+    pub rays: &'a Tensor<4>,
+    /// The point branch's distances `[B, 1, H_s, W_s]` (read with `gs_depth = "points"`).
+    pub distance: Option<Tensor<4>>,
+}
+
 impl GaussianHead {
     /// Where the colours come from.
     pub fn colour(&self) -> GsColour {
@@ -243,23 +255,25 @@ impl GaussianHead {
         self.depth
     }
 
-    /// The Gaussians of the source pixels from the source tokens of `T_out` `[B, T_s, d]`, the
-    /// source image `[B, 3, H_s, W_s]` (read with `gs_colour = "source"`), the source rays
-    /// `[B, 6, H_s, W_s]` and the point branch's distances `[B, 1, H_s, W_s]` (read with
-    /// `gs_depth = "points"`), rendered in the target views at `height x width`.
+    /// The Gaussians of the source pixels from the source tokens of `T_out` `[B, T_s, d]` and
+    /// what the head reads per source pixel (`source`), rendered in the target views at
+    /// `height x width`.
     ///
     /// # Panics
     /// With `gs_depth = "points"` and no point distances.
     pub fn forward(
         &self,
         source_tokens: Tensor<3>,
-        source_image: &Tensor<4>,
-        source_rays: &Tensor<4>,
-        point_distance: Option<Tensor<4>>,
+        source: SourcePixels<'_>,
         views: &Views,
         height: usize,
         width: usize,
     ) -> GaussianOutput {
+        let SourcePixels {
+            image: source_image,
+            rays: source_rays,
+            distance: point_distance,
+        } = source;
         let [_, _, hs, ws] = source_rays.dims();
         let raw = unpatchify(
             self.linear.forward(self.norm.forward(source_tokens)),
@@ -385,7 +399,17 @@ mod tests {
         let rays = plucker_rays(&views.source, &device);
         let tokens = Tensor::<3>::random([2, 6, 16], Distribution::Normal(0.0, 1.0), &device);
         let image = Tensor::<4>::zeros([2, 3, 16, 24], &device);
-        let out = head.forward(tokens, &image, &rays, None, &views, 16, 24);
+        let out = head.forward(
+            tokens,
+            SourcePixels {
+                image: &image,
+                rays: &rays,
+                distance: None,
+            },
+            &views,
+            16,
+            24,
+        );
         assert_eq!(out.image.dims(), [2, 3, 16, 24]);
         assert_eq!(out.alpha.dims(), [2, 1, 16, 24]);
         assert_eq!(out.gaussians.means.dims(), [2, 16 * 24, 3]);
@@ -447,7 +471,17 @@ mod tests {
         let tokens = Tensor::<3>::random([1, 4, 16], Distribution::Normal(0.0, 1.0), &device);
         let target = Tensor::<4>::random([1, 3, 16, 16], Distribution::Uniform(0.0, 1.0), &device);
         let image = Tensor::<4>::zeros([1, 3, 16, 16], &device);
-        let out = head.forward(tokens, &image, &rays, None, &views, 16, 16);
+        let out = head.forward(
+            tokens,
+            SourcePixels {
+                image: &image,
+                rays: &rays,
+                distance: None,
+            },
+            &views,
+            16,
+            16,
+        );
         let grads = (out.image - target).powi_scalar(2).mean().backward();
         let g = values(&head.linear.weight.val().grad(&grads).unwrap());
         assert!(g.iter().all(|v| v.is_finite()) && g.iter().any(|&v| v != 0.0));
@@ -471,15 +505,12 @@ mod tests {
         let distance =
             Tensor::<4>::random([1, 1, 16, 16], Distribution::Uniform(1.5, 2.5), &device)
                 .require_grad();
-        let out = head.forward(
-            tokens,
-            &image,
-            &rays,
-            Some(distance.clone()),
-            &views,
-            16,
-            16,
-        );
+        let source = SourcePixels {
+            image: &image,
+            rays: &rays,
+            distance: Some(distance.clone()),
+        };
+        let out = head.forward(tokens, source, &views, 16, 16);
         // Colours are the source pixels, row-major.
         let colours = values(&out.gaussians.features);
         let source = values(&image);
@@ -550,7 +581,17 @@ mod tests {
         assert!((key[0] - KEY_FLOOR).abs() < 1e-5);
         let rays = plucker_rays(&views.source, &device);
         let tokens = Tensor::<3>::random([1, 9, 16], Distribution::Normal(0.0, 1.0), &device);
-        let out = head.forward(tokens, &image, &rays, None, &views, h, w);
+        let out = head.forward(
+            tokens,
+            SourcePixels {
+                image: &image,
+                rays: &rays,
+                distance: None,
+            },
+            &views,
+            h,
+            w,
+        );
         let got = values(&out.image);
         for y in 0..h {
             for x in 0..w {
@@ -585,7 +626,17 @@ mod tests {
         let rays = plucker_rays(&views.source, &device);
         let tokens = Tensor::<3>::random([2, 1, 16], Distribution::Normal(0.0, 1.0), &device);
         let image = Tensor::<4>::zeros([2, 3, 8, 8], &device);
-        let out = head.forward(tokens, &image, &rays, None, &views, 8, 8);
+        let out = head.forward(
+            tokens,
+            SourcePixels {
+                image: &image,
+                rays: &rays,
+                distance: None,
+            },
+            &views,
+            8,
+            8,
+        );
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("pair1.ply");
         out.save_ply(1, &path).unwrap();

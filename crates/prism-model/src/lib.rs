@@ -50,7 +50,7 @@ pub use config::{AttentionPattern, ModelConfigFile, PrismConfig, load_config, pa
 pub use distill::{DistillConfig, DistillLayers, DistillMode, progressive_schedule};
 pub use dpt::{DptHead, DptHeadConfig, dpt_taps};
 pub use error::ModelError;
-pub use gaussian_head::{GaussianHead, GaussianHeadConfig, GaussianOutput};
+pub use gaussian_head::{GaussianHead, GaussianHeadConfig, GaussianOutput, SourcePixels};
 pub use head::{NvsHead, NvsHeadConfig};
 pub use info::{BlockInfo, FlopCounts, ModelInfo, ParameterCounts};
 pub use injection::{Injection, InjectionConfig, ZeroConv};

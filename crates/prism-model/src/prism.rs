@@ -11,7 +11,7 @@ use crate::body_model::load_body_model;
 use crate::config::PrismConfig;
 use crate::dpt::dpt_taps;
 use crate::error::ModelError;
-use crate::gaussian_head::{GaussianHead, GaussianHeadConfig, GaussianOutput};
+use crate::gaussian_head::{GaussianHead, GaussianHeadConfig, GaussianOutput, SourcePixels};
 use crate::head::{NvsHead, NvsHeadConfig};
 use crate::injection::{Injection, InjectionConfig};
 use crate::point_branch::{PointBranch, PointBranchConfig, PointOutput};
@@ -399,11 +399,14 @@ impl Prism {
             .clone()
             .narrow(1, source_tokens, total - source_tokens);
         let gaussians = self.gs_head.as_ref().map(|head| {
+            let source = SourcePixels {
+                image: &source_image,
+                rays: &source_rays,
+                distance: points.as_ref().map(|p| p.distance.clone()),
+            };
             head.forward(
                 source_of(&t_out),
-                &source_image,
-                &source_rays,
-                points.as_ref().map(|p| p.distance.clone()),
+                source,
                 views.expect("checked"),
                 height,
                 width,
