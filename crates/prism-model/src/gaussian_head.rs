@@ -377,6 +377,15 @@ mod tests {
     use burn::tensor::Distribution;
     use prism_data::rays::plucker_rays;
 
+    /// The source pixels without point distances.
+    fn pixels<'a>(image: &'a Tensor<4>, rays: &'a Tensor<4>) -> SourcePixels<'a> {
+        SourcePixels {
+            image,
+            rays,
+            distance: None,
+        }
+    }
+
     fn head(device: &Device) -> GaussianHead {
         GaussianHeadConfig::new(16, 8, 2.0).init(device)
     }
@@ -399,17 +408,7 @@ mod tests {
         let rays = plucker_rays(&views.source, &device);
         let tokens = Tensor::<3>::random([2, 6, 16], Distribution::Normal(0.0, 1.0), &device);
         let image = Tensor::<4>::zeros([2, 3, 16, 24], &device);
-        let out = head.forward(
-            tokens,
-            SourcePixels {
-                image: &image,
-                rays: &rays,
-                distance: None,
-            },
-            &views,
-            16,
-            24,
-        );
+        let out = head.forward(tokens, pixels(&image, &rays), &views, 16, 24);
         assert_eq!(out.image.dims(), [2, 3, 16, 24]);
         assert_eq!(out.alpha.dims(), [2, 1, 16, 24]);
         assert_eq!(out.gaussians.means.dims(), [2, 16 * 24, 3]);
@@ -471,17 +470,7 @@ mod tests {
         let tokens = Tensor::<3>::random([1, 4, 16], Distribution::Normal(0.0, 1.0), &device);
         let target = Tensor::<4>::random([1, 3, 16, 16], Distribution::Uniform(0.0, 1.0), &device);
         let image = Tensor::<4>::zeros([1, 3, 16, 16], &device);
-        let out = head.forward(
-            tokens,
-            SourcePixels {
-                image: &image,
-                rays: &rays,
-                distance: None,
-            },
-            &views,
-            16,
-            16,
-        );
+        let out = head.forward(tokens, pixels(&image, &rays), &views, 16, 16);
         let grads = (out.image - target).powi_scalar(2).mean().backward();
         let g = values(&head.linear.weight.val().grad(&grads).unwrap());
         assert!(g.iter().all(|v| v.is_finite()) && g.iter().any(|&v| v != 0.0));
@@ -581,17 +570,7 @@ mod tests {
         assert!((key[0] - KEY_FLOOR).abs() < 1e-5);
         let rays = plucker_rays(&views.source, &device);
         let tokens = Tensor::<3>::random([1, 9, 16], Distribution::Normal(0.0, 1.0), &device);
-        let out = head.forward(
-            tokens,
-            SourcePixels {
-                image: &image,
-                rays: &rays,
-                distance: None,
-            },
-            &views,
-            h,
-            w,
-        );
+        let out = head.forward(tokens, pixels(&image, &rays), &views, h, w);
         let got = values(&out.image);
         for y in 0..h {
             for x in 0..w {
@@ -626,17 +605,7 @@ mod tests {
         let rays = plucker_rays(&views.source, &device);
         let tokens = Tensor::<3>::random([2, 1, 16], Distribution::Normal(0.0, 1.0), &device);
         let image = Tensor::<4>::zeros([2, 3, 8, 8], &device);
-        let out = head.forward(
-            tokens,
-            SourcePixels {
-                image: &image,
-                rays: &rays,
-                distance: None,
-            },
-            &views,
-            8,
-            8,
-        );
+        let out = head.forward(tokens, pixels(&image, &rays), &views, 8, 8);
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("pair1.ply");
         out.save_ply(1, &path).unwrap();

@@ -308,6 +308,38 @@ impl ModelInfo {
     }
 }
 
+/// Every float parameter of a module as (path, values flattened to one dimension), in visiting
+/// order; paths are the modules' field names joined by dots (`stage_one.blocks.0.mlp...`).
+pub fn named_parameters<M: burn::module::Module>(
+    module: &M,
+) -> Vec<(String, burn::tensor::Tensor<1>)> {
+    use burn::module::{ModuleVisitor, Param};
+    use burn::tensor::Tensor;
+    struct Collect {
+        path: Vec<String>,
+        out: Vec<(String, Tensor<1>)>,
+    }
+    impl ModuleVisitor for Collect {
+        fn enter_module(&mut self, name: &str, _container_type: &str) {
+            self.path.push(name.to_string());
+        }
+        fn exit_module(&mut self, _name: &str, _container_type: &str) {
+            self.path.pop();
+        }
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            let n: usize = param.val().dims().iter().product();
+            self.out
+                .push((self.path.join("."), param.val().reshape([n])));
+        }
+    }
+    let mut collect = Collect {
+        path: Vec::new(),
+        out: Vec::new(),
+    };
+    module.visit(&mut collect);
+    collect.out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

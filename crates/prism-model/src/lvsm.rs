@@ -41,7 +41,7 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
-use burn::module::{Module, ModuleVisitor, Param};
+use burn::module::Param;
 use burn::nn::Linear;
 use burn::store::pytorch::PytorchReader;
 use burn::store::pytorch_reader::DType as PtDType;
@@ -51,6 +51,7 @@ use crate::block::PrismBlock;
 use crate::config::PrismConfig;
 use crate::error::ModelError;
 use crate::head::NvsOutput;
+use crate::info::named_parameters;
 use crate::prism::Prism;
 use crate::tokenizer::{SOURCE_CHANNELS, TARGET_CHANNELS};
 
@@ -606,32 +607,6 @@ fn set_gain(gain: &mut Param<Tensor<1>>, t: &LvsmTensor, device: &Device) {
     *gain = Param::from_tensor(value);
 }
 
-/// Every float parameter of a module as (path, number of values), in visiting order.
-pub fn parameter_shapes<M: Module>(module: &M) -> Vec<(String, usize)> {
-    struct Collect {
-        path: Vec<String>,
-        out: Vec<(String, usize)>,
-    }
-    impl ModuleVisitor for Collect {
-        fn enter_module(&mut self, name: &str, _container_type: &str) {
-            self.path.push(name.to_string());
-        }
-        fn exit_module(&mut self, _name: &str, _container_type: &str) {
-            self.path.pop();
-        }
-        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
-            let n = param.val().dims().iter().product();
-            self.out.push((self.path.join("."), n));
-        }
-    }
-    let mut collect = Collect {
-        path: Vec::new(),
-        out: Vec::new(),
-    };
-    module.visit(&mut collect);
-    collect.out
-}
-
 /// The parts of `model` that keep their fresh initialisation: every module other than the
 /// tokenizer, the blocks and the NVS decoder (the geometry parts and the injection), and the
 /// new blocks.
@@ -645,7 +620,8 @@ fn fresh_parts(model: &Prism, new_blocks: &[usize], stage_one: usize) -> Vec<Fre
     };
     let new: Vec<String> = new_blocks.iter().map(|&b| block_path(b)).collect();
     let mut parts: Vec<FreshPart> = Vec::new();
-    for (path, n) in parameter_shapes(model) {
+    for (path, tensor) in named_parameters(model) {
+        let n = tensor.dims()[0];
         let top = path.split('.').next().unwrap_or("");
         let module = if ["tokenizer", "stage_one", "stage_three", "nvs_head"].contains(&top) {
             match new.iter().find(|b| path.starts_with(&format!("{b}."))) {

@@ -1,6 +1,6 @@
 //! Helpers shared by the unit tests.
 
-use burn::module::{Module, ModuleVisitor, Param};
+use burn::module::Module;
 use burn::tensor::{Device, Tensor};
 
 /// The ndarray device (the backend every test must pass on).
@@ -29,27 +29,10 @@ pub fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
 
 /// Every float parameter of a module as (path, values), in visiting order.
 pub fn parameters<M: Module>(module: &M) -> Vec<(String, Vec<f32>)> {
-    struct Collect {
-        path: Vec<String>,
-        out: Vec<(String, Vec<f32>)>,
-    }
-    impl ModuleVisitor for Collect {
-        fn enter_module(&mut self, name: &str, _container_type: &str) {
-            self.path.push(name.to_string());
-        }
-        fn exit_module(&mut self, _name: &str, _container_type: &str) {
-            self.path.pop();
-        }
-        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
-            self.out.push((self.path.join("."), values(&param.val())));
-        }
-    }
-    let mut collect = Collect {
-        path: Vec::new(),
-        out: Vec::new(),
-    };
-    module.visit(&mut collect);
-    collect.out
+    crate::info::named_parameters(module)
+        .into_iter()
+        .map(|(path, t)| (path, values(&t)))
+        .collect()
 }
 
 /// Protocol-like views of `b` pairs at `h x w`: the frontal source camera and targets at
