@@ -4,9 +4,12 @@ mod commands;
 
 use clap::{Parser, Subcommand};
 
-/// Counts live heap bytes so that `prism bench` can report the peak memory of the CPU backends.
+/// mimalloc (tensor buffers are large and short-lived: it keeps them mapped where the system
+/// allocator returns them to the kernel and page-faults them in again), counting live heap
+/// bytes so that `prism bench` can report the peak memory of the CPU backends.
 #[global_allocator]
-static ALLOCATOR: prism_model::PeakAllocator = prism_model::PeakAllocator;
+static ALLOCATOR: prism_model::PeakAllocator<mimalloc::MiMalloc> =
+    prism_model::PeakAllocator(mimalloc::MiMalloc);
 
 /// prism: real-time single-image human frontal view synthesis (PrismMirror) on Burn.
 #[derive(Parser, Debug)]

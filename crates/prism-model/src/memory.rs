@@ -6,7 +6,7 @@
 //! bytes; otherwise the probe falls back to the process's resident-set high-water mark
 //! (Linux).
 
-use std::alloc::{GlobalAlloc, Layout, System};
+use std::alloc::{GlobalAlloc, Layout};
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use burn::tensor::Device;
@@ -14,61 +14,59 @@ use burn::tensor::Device;
 static LIVE: AtomicU64 = AtomicU64::new(0);
 static PEAK: AtomicU64 = AtomicU64::new(0);
 
-/// The system allocator, counting the live heap bytes and their peak, so that [`MemoryProbe`]
-/// can report the peak heap use of the CPU backends. Install it in a binary with
-/// `#[global_allocator] static ALLOC: PeakAllocator = PeakAllocator;` (the cost is two atomic
-/// additions per allocation).
+/// An allocator (`A`: the system's, or a faster one) counting the live heap bytes and their
+/// peak, so that [`MemoryProbe`] can report the peak heap use of the CPU backends. Install it
+/// in a binary with `#[global_allocator] static ALLOC: PeakAllocator<System> =
+/// PeakAllocator(System);` (the cost is two atomic additions per allocation).
 #[derive(Debug, Default, Clone, Copy)]
-pub struct PeakAllocator;
+pub struct PeakAllocator<A>(pub A);
 
-impl PeakAllocator {
-    /// Live heap bytes now (0 when the allocator is not installed).
-    pub fn live_bytes() -> u64 {
-        LIVE.load(Ordering::Relaxed)
-    }
-
-    fn added(size: usize) {
-        let live = LIVE.fetch_add(size as u64, Ordering::Relaxed) + size as u64;
-        PEAK.fetch_max(live, Ordering::Relaxed);
-    }
-
-    fn removed(size: usize) {
-        LIVE.fetch_sub(size as u64, Ordering::Relaxed);
-    }
+/// Live heap bytes now, as counted by [`PeakAllocator`] (0 when it is not installed).
+pub fn live_heap_bytes() -> u64 {
+    LIVE.load(Ordering::Relaxed)
 }
 
-// SAFETY: every call is forwarded unchanged to the system allocator; the counters only observe.
-unsafe impl GlobalAlloc for PeakAllocator {
+fn added(size: usize) {
+    let live = LIVE.fetch_add(size as u64, Ordering::Relaxed) + size as u64;
+    PEAK.fetch_max(live, Ordering::Relaxed);
+}
+
+fn removed(size: usize) {
+    LIVE.fetch_sub(size as u64, Ordering::Relaxed);
+}
+
+// SAFETY: every call is forwarded unchanged to the inner allocator; the counters only observe.
+unsafe impl<A: GlobalAlloc> GlobalAlloc for PeakAllocator<A> {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
         // SAFETY: same contract as the caller's.
-        let ptr = unsafe { System.alloc(layout) };
+        let ptr = unsafe { self.0.alloc(layout) };
         if !ptr.is_null() {
-            Self::added(layout.size());
+            added(layout.size());
         }
         ptr
     }
 
     unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
         // SAFETY: same contract as the caller's.
-        let ptr = unsafe { System.alloc_zeroed(layout) };
+        let ptr = unsafe { self.0.alloc_zeroed(layout) };
         if !ptr.is_null() {
-            Self::added(layout.size());
+            added(layout.size());
         }
         ptr
     }
 
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
         // SAFETY: same contract as the caller's.
-        unsafe { System.dealloc(ptr, layout) };
-        Self::removed(layout.size());
+        unsafe { self.0.dealloc(ptr, layout) };
+        removed(layout.size());
     }
 
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
         // SAFETY: same contract as the caller's.
-        let new = unsafe { System.realloc(ptr, layout, new_size) };
+        let new = unsafe { self.0.realloc(ptr, layout, new_size) };
         if !new.is_null() {
-            Self::removed(layout.size());
-            Self::added(new_size);
+            removed(layout.size());
+            added(new_size);
         }
         new
     }
@@ -112,8 +110,8 @@ impl MemoryProbe {
             Source::Pool {
                 peak: usage.bytes_reserved,
             }
-        } else if PeakAllocator::live_bytes() > 0 {
-            let start = PeakAllocator::live_bytes();
+        } else if live_heap_bytes() > 0 {
+            let start = live_heap_bytes();
             PEAK.store(start, Ordering::Relaxed);
             Source::Heap { start }
         } else {
