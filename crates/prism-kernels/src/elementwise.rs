@@ -1,0 +1,46 @@
+//! GELU on host slices, forward and backward: one pass each, vectorised, split over threads.
+
+use multiversion::multiversion;
+use rayon::prelude::*;
+
+use crate::math;
+
+/// Elements per parallel task: large enough to amortise scheduling, small enough to balance.
+const CHUNK: usize = 1 << 14;
+
+/// `y = GELU(x)`.
+pub fn gelu(x: &[f32]) -> Vec<f32> {
+    let mut y = vec![0.0; x.len()];
+    y.par_chunks_mut(CHUNK)
+        .zip(x.par_chunks(CHUNK))
+        .for_each(|(y, x)| gelu_chunk(x, y));
+    y
+}
+
+/// `dx = grad * GELU'(x)`.
+pub fn gelu_backward(x: &[f32], grad: &[f32]) -> Vec<f32> {
+    assert_eq!(
+        x.len(),
+        grad.len(),
+        "gelu_backward: input and gradient sizes differ"
+    );
+    let mut dx = vec![0.0; x.len()];
+    dx.par_chunks_mut(CHUNK)
+        .zip(x.par_chunks(CHUNK).zip(grad.par_chunks(CHUNK)))
+        .for_each(|(dx, (x, g))| gelu_backward_chunk(x, g, dx));
+    dx
+}
+
+#[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]
+fn gelu_chunk(x: &[f32], y: &mut [f32]) {
+    for (y, &x) in y.iter_mut().zip(x) {
+        *y = math::gelu(x);
+    }
+}
+
+#[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]
+fn gelu_backward_chunk(x: &[f32], grad: &[f32], dx: &mut [f32]) {
+    for ((dx, &x), &g) in dx.iter_mut().zip(x).zip(grad) {
+        *dx = g * math::gelu_derivative(x);
+    }
+}

@@ -1,0 +1,329 @@
+//! The fused kernels as a Burn backend extension: [`FusedOps`] is implemented by the CPU
+//! backends (flex, ndarray) with the host kernels, and by `Autodiff<B, C>` with one graph
+//! node per call whose backward step runs the matching backward kernel.
+
+// burn-ndarray is deprecated upstream, but the project's tests run on it.
+#![allow(deprecated)]
+
+use burn::backend::autodiff::checkpoint::{base::Checkpointer, strategy::CheckpointStrategy};
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{Backward, Ops, OpsKind, unary};
+use burn::backend::tensor::FloatTensor;
+use burn::backend::{Autodiff, Backend, Flex, NdArray, TensorMetadata, backend_extension};
+use burn::tensor::Shape;
+
+use crate::attention::{self, Dims};
+use crate::elementwise;
+use crate::host::HostTensors;
+use crate::norm::{self, NormKind};
+
+/// Fused operations of the backbone. Every method takes and returns f32 tensors.
+#[backend_extension(Autodiff, Flex, NdArray)]
+pub trait FusedOps: Backend {
+    /// `GELU(x)` element-wise.
+    fn fused_gelu(x: FloatTensor<Self>) -> FloatTensor<Self>;
+    /// LayerNorm without bias over the last dimension: `(x - mean) / sqrt(var + eps) * gamma`.
+    fn fused_layer_norm(
+        x: FloatTensor<Self>,
+        gamma: FloatTensor<Self>,
+        eps: f64,
+    ) -> FloatTensor<Self>;
+    /// RMSNorm over the last dimension: `x / sqrt(mean(x^2) + eps) * gamma`.
+    fn fused_rms_norm(
+        x: FloatTensor<Self>,
+        gamma: FloatTensor<Self>,
+        eps: f64,
+    ) -> FloatTensor<Self>;
+    /// `softmax(q k^T / sqrt(d_h)) v` on `[B, H, T, d_h]` tensors.
+    fn fused_attention(
+        q: FloatTensor<Self>,
+        k: FloatTensor<Self>,
+        v: FloatTensor<Self>,
+    ) -> FloatTensor<Self>;
+}
+
+/// GELU through the host kernel.
+fn gelu<B: HostTensors>(x: FloatTensor<B>) -> FloatTensor<B> {
+    let (shape, device) = (x.shape(), x.device());
+    B::tensor(elementwise::gelu(&B::values(x)), shape, &device)
+}
+
+/// `grad * GELU'(x)` through the host kernel.
+fn gelu_backward<B: HostTensors>(x: FloatTensor<B>, grad: FloatTensor<B>) -> FloatTensor<B> {
+    let (shape, device) = (x.shape(), x.device());
+    let dx = elementwise::gelu_backward(&B::values(x), &B::values(grad));
+    B::tensor(dx, shape, &device)
+}
+
+/// A normalisation through the host kernel.
+fn norm_forward<B: HostTensors>(
+    kind: NormKind,
+    x: FloatTensor<B>,
+    gamma: FloatTensor<B>,
+    eps: f64,
+) -> FloatTensor<B> {
+    let (shape, device) = (x.shape(), x.device());
+    let y = norm::forward(kind, &B::values(x), &B::values(gamma), eps as f32);
+    B::tensor(y, shape, &device)
+}
+
+/// The gradients `(dx, dgamma)` of a normalisation through the host kernel.
+fn norm_backward<B: HostTensors>(
+    kind: NormKind,
+    x: FloatTensor<B>,
+    gamma: FloatTensor<B>,
+    grad: FloatTensor<B>,
+    eps: f64,
+) -> (FloatTensor<B>, FloatTensor<B>) {
+    let (shape, gamma_shape, device) = (x.shape(), gamma.shape(), x.device());
+    let (dx, dgamma) = norm::backward(
+        kind,
+        &B::values(x),
+        &B::values(gamma),
+        &B::values(grad),
+        eps as f32,
+    );
+    (
+        B::tensor(dx, shape, &device),
+        B::tensor(dgamma, gamma_shape, &device),
+    )
+}
+
+/// The sizes of an attention call on `[B, H, T, d_h]` and its scale `1 / sqrt(d_h)`.
+fn attention_dims(q: &Shape, k: &Shape, v: &Shape) -> (Dims, f32) {
+    assert!(
+        q.num_dims() == 4 && q == k && q == v,
+        "fused attention takes q, k, v of one [B, H, T, d_h] shape, got {q:?}, {k:?}, {v:?}"
+    );
+    let dims = Dims {
+        heads: q[0] * q[1],
+        tokens: q[2],
+        head_dim: q[3],
+    };
+    (dims, 1.0 / (dims.head_dim as f32).sqrt())
+}
+
+/// `(o, lse)` through the host kernel.
+fn attention_forward<B: HostTensors>(
+    q: FloatTensor<B>,
+    k: FloatTensor<B>,
+    v: FloatTensor<B>,
+) -> (FloatTensor<B>, FloatTensor<B>) {
+    let (shape, device) = (q.shape(), q.device());
+    let (dims, scale) = attention_dims(&shape, &k.shape(), &v.shape());
+    let (o, lse) = attention::forward(&B::values(q), &B::values(k), &B::values(v), dims, scale);
+    let lse_shape = Shape::new([shape[0], shape[1], shape[2]]);
+    (
+        B::tensor(o, shape, &device),
+        B::tensor(lse, lse_shape, &device),
+    )
+}
+
+/// What the attention's backward step keeps: the inputs, the output and its log-sum-exp.
+#[derive(Clone, Debug)]
+struct AttentionState<B: Backend> {
+    q: FloatTensor<B>,
+    k: FloatTensor<B>,
+    v: FloatTensor<B>,
+    o: FloatTensor<B>,
+    lse: FloatTensor<B>,
+}
+
+/// `(dq, dk, dv)` through the host kernel.
+fn attention_backward<B: HostTensors>(
+    state: AttentionState<B>,
+    grad: FloatTensor<B>,
+) -> [FloatTensor<B>; 3] {
+    let (shape, device) = (state.q.shape(), state.q.device());
+    let (dims, scale) = attention_dims(&shape, &state.k.shape(), &state.v.shape());
+    let (dq, dk, dv) = attention::backward(
+        &B::values(state.q),
+        &B::values(state.k),
+        &B::values(state.v),
+        &B::values(state.o),
+        &B::values(state.lse),
+        &B::values(grad),
+        dims,
+        scale,
+    );
+    [dq, dk, dv].map(|g| B::tensor(g, shape.clone(), &device))
+}
+
+/// The concrete CPU backends: the host kernels directly.
+macro_rules! host_fused_ops {
+    ($backend:ty) => {
+        impl FusedOps for $backend {
+            fn fused_gelu(x: FloatTensor<Self>) -> FloatTensor<Self> {
+                gelu::<Self>(x)
+            }
+
+            fn fused_layer_norm(
+                x: FloatTensor<Self>,
+                gamma: FloatTensor<Self>,
+                eps: f64,
+            ) -> FloatTensor<Self> {
+                norm_forward::<Self>(NormKind::Layer, x, gamma, eps)
+            }
+
+            fn fused_rms_norm(
+                x: FloatTensor<Self>,
+                gamma: FloatTensor<Self>,
+                eps: f64,
+            ) -> FloatTensor<Self> {
+                norm_forward::<Self>(NormKind::Rms, x, gamma, eps)
+            }
+
+            fn fused_attention(
+                q: FloatTensor<Self>,
+                k: FloatTensor<Self>,
+                v: FloatTensor<Self>,
+            ) -> FloatTensor<Self> {
+                attention_forward::<Self>(q, k, v).0
+            }
+        }
+    };
+}
+
+host_fused_ops!(Flex);
+host_fused_ops!(NdArray);
+
+/// Backward step of [`FusedOps::fused_gelu`].
+#[derive(Debug)]
+struct GeluBackward;
+
+impl<B: HostTensors> Backward<B, 1> for GeluBackward {
+    type State = FloatTensor<B>;
+
+    fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let Ops {
+            parents,
+            node,
+            state,
+        } = ops;
+        unary::<B, _>(parents, node, grads, |grad| gelu_backward::<B>(state, grad));
+    }
+}
+
+/// Backward step of the normalisations.
+#[derive(Debug)]
+struct NormBackward(NormKind);
+
+impl<B: HostTensors> Backward<B, 2> for NormBackward {
+    type State = (FloatTensor<B>, FloatTensor<B>, f64);
+
+    fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let Ops {
+            parents,
+            node,
+            state: (x, gamma, eps),
+        } = ops;
+        let grad = grads.consume::<B>(&node);
+        let (dx, dgamma) = norm_backward::<B>(self.0, x, gamma, grad, eps);
+        let [x_node, gamma_node] = parents;
+        if let Some(node) = x_node {
+            grads.register::<B>(node.id, dx);
+        }
+        if let Some(node) = gamma_node {
+            grads.register::<B>(node.id, dgamma);
+        }
+    }
+}
+
+/// Backward step of [`FusedOps::fused_attention`].
+#[derive(Debug)]
+struct AttentionBackward;
+
+impl<B: HostTensors> Backward<B, 3> for AttentionBackward {
+    type State = AttentionState<B>;
+
+    fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let Ops {
+            parents,
+            node,
+            state,
+        } = ops;
+        let grad = grads.consume::<B>(&node);
+        let gradients = attention_backward::<B>(state, grad);
+        for (parent, gradient) in parents.into_iter().zip(gradients) {
+            if let Some(node) = parent {
+                grads.register::<B>(node.id, gradient);
+            }
+        }
+    }
+}
+
+impl<B: HostTensors, C: CheckpointStrategy> FusedOps for Autodiff<B, C> {
+    fn fused_gelu(x: FloatTensor<Self>) -> FloatTensor<Self> {
+        let nodes = [x.node()];
+        let x = x.into_primitive();
+        match GeluBackward.prepare::<C>(nodes).compute_bound().stateful() {
+            OpsKind::Tracked(prep) => prep.finish(x.clone(), gelu::<B>(x)),
+            OpsKind::UnTracked(prep) => prep.finish(gelu::<B>(x)),
+        }
+    }
+
+    fn fused_layer_norm(
+        x: FloatTensor<Self>,
+        gamma: FloatTensor<Self>,
+        eps: f64,
+    ) -> FloatTensor<Self> {
+        tracked_norm::<B, C>(NormKind::Layer, x, gamma, eps)
+    }
+
+    fn fused_rms_norm(
+        x: FloatTensor<Self>,
+        gamma: FloatTensor<Self>,
+        eps: f64,
+    ) -> FloatTensor<Self> {
+        tracked_norm::<B, C>(NormKind::Rms, x, gamma, eps)
+    }
+
+    fn fused_attention(
+        q: FloatTensor<Self>,
+        k: FloatTensor<Self>,
+        v: FloatTensor<Self>,
+    ) -> FloatTensor<Self> {
+        let nodes = [q.node(), k.node(), v.node()];
+        let (q, k, v) = (q.into_primitive(), k.into_primitive(), v.into_primitive());
+        match AttentionBackward
+            .prepare::<C>(nodes)
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                let (o, lse) = attention_forward::<B>(q.clone(), k.clone(), v.clone());
+                let state = AttentionState {
+                    q,
+                    k,
+                    v,
+                    o: o.clone(),
+                    lse,
+                };
+                prep.finish(state, o)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(attention_forward::<B>(q, k, v).0),
+        }
+    }
+}
+
+/// A normalisation as one autodiff node.
+fn tracked_norm<B: HostTensors, C: CheckpointStrategy>(
+    kind: NormKind,
+    x: FloatTensor<Autodiff<B, C>>,
+    gamma: FloatTensor<Autodiff<B, C>>,
+    eps: f64,
+) -> FloatTensor<Autodiff<B, C>> {
+    let nodes = [x.node(), gamma.node()];
+    let (x, gamma) = (x.into_primitive(), gamma.into_primitive());
+    match NormBackward(kind)
+        .prepare::<C>(nodes)
+        .compute_bound()
+        .stateful()
+    {
+        OpsKind::Tracked(prep) => {
+            let y = norm_forward::<B>(kind, x.clone(), gamma.clone(), eps);
+            prep.finish((x, gamma, eps), y)
+        }
+        OpsKind::UnTracked(prep) => prep.finish(norm_forward::<B>(kind, x, gamma, eps)),
+    }
+}

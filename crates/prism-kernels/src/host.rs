@@ -1,0 +1,80 @@
+//! Host memory views of the CPU backends' tensors, for the fused kernels: flex lends its
+//! buffer (no copy when the tensor is contiguous) and takes the result's `Vec` as its buffer;
+//! ndarray reads and writes through `TensorData` (a copy each way).
+
+// burn-ndarray is deprecated upstream, but the project's tests run on it.
+#![allow(deprecated)]
+
+use std::ops::Deref;
+
+use burn::backend::flex::{FlexTensor, Layout};
+use burn::backend::ops::FloatTensorOps;
+use burn::backend::tensor::FloatTensor;
+use burn::backend::{Backend, Flex, NdArray, TensorMetadata};
+use burn::tensor::{Bytes, DType, Shape, TensorData, read_sync};
+
+/// An f32 tensor's values in host memory, borrowed or owned.
+pub enum HostValues {
+    /// A contiguous flex tensor, read in place.
+    Flex(FlexTensor),
+    /// A copy.
+    Owned(Vec<f32>),
+}
+
+impl Deref for HostValues {
+    type Target = [f32];
+
+    fn deref(&self) -> &[f32] {
+        match self {
+            Self::Flex(t) => t.as_slice::<f32>().expect("contiguous f32 flex tensor"),
+            Self::Owned(v) => v,
+        }
+    }
+}
+
+/// A CPU backend whose f32 tensors the fused kernels read and write as slices.
+pub trait HostTensors: Backend {
+    /// The values of an f32 tensor, row-major.
+    fn values(tensor: FloatTensor<Self>) -> HostValues;
+
+    /// A tensor of `shape` holding `values` (row-major) on `device`.
+    fn tensor(values: Vec<f32>, shape: Shape, device: &Self::Device) -> FloatTensor<Self>;
+}
+
+impl HostTensors for Flex {
+    fn values(tensor: FloatTensor<Self>) -> HostValues {
+        assert_eq!(tensor.dtype(), DType::F32, "fused kernels take f32 tensors");
+        let tensor = if tensor.as_slice::<f32>().is_some() {
+            tensor
+        } else {
+            tensor.to_contiguous()
+        };
+        HostValues::Flex(tensor)
+    }
+
+    fn tensor(values: Vec<f32>, shape: Shape, _device: &Self::Device) -> FloatTensor<Self> {
+        assert_eq!(
+            values.len(),
+            shape.num_elements(),
+            "values do not fill the shape"
+        );
+        FlexTensor::new(
+            Bytes::from_elems(values),
+            Layout::contiguous(shape),
+            DType::F32,
+        )
+    }
+}
+
+impl HostTensors for NdArray {
+    fn values(tensor: FloatTensor<Self>) -> HostValues {
+        assert_eq!(tensor.dtype(), DType::F32, "fused kernels take f32 tensors");
+        let data =
+            read_sync(Self::float_into_data(tensor)).expect("ndarray tensors are on the host");
+        HostValues::Owned(data.into_vec::<f32>().expect("f32 tensor data"))
+    }
+
+    fn tensor(values: Vec<f32>, shape: Shape, device: &Self::Device) -> FloatTensor<Self> {
+        Self::float_from_data(TensorData::new(values, shape), device)
+    }
+}

@@ -1,0 +1,138 @@
+//! LayerNorm (no bias) and RMSNorm over the last dimension on host slices, forward and
+//! backward, one pass over each row per output (the unfused Burn graph makes about eight).
+//! Rows are split over threads; the gain's gradient is summed per task and then added up.
+
+use multiversion::multiversion;
+use rayon::prelude::*;
+
+use crate::math;
+
+/// Which normalisation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NormKind {
+    /// `(x - mean) / sqrt(var + eps) * gamma` (biased variance, as Burn's LayerNorm).
+    Layer,
+    /// `x / sqrt(mean(x^2) + eps) * gamma` (as Burn's RmsNorm).
+    Rms,
+}
+
+/// Rows per parallel task for a row width `d`: about 16k elements.
+fn rows_per_task(d: usize) -> usize {
+    ((1 << 14) / d.max(1)).max(1)
+}
+
+/// The row's centre (the mean for LayerNorm, 0 for RMSNorm) and `1 / sqrt(var + eps)`.
+#[inline(always)]
+fn stats(kind: NormKind, row: &[f32], eps: f32) -> (f32, f32) {
+    let d = row.len() as f32;
+    let centre = match kind {
+        NormKind::Layer => math::sum_map(row, |x| x) / d,
+        NormKind::Rms => 0.0,
+    };
+    let var = math::sum_map(row, |x| (x - centre) * (x - centre)) / d;
+    (centre, 1.0 / (var + eps).sqrt())
+}
+
+/// The normalisation of `x` (rows of `gamma.len()` values) scaled by `gamma`.
+pub fn forward(kind: NormKind, x: &[f32], gamma: &[f32], eps: f32) -> Vec<f32> {
+    let d = gamma.len();
+    assert!(
+        d > 0 && x.len() % d == 0,
+        "norm: {} values are not rows of {d}",
+        x.len()
+    );
+    let mut y = vec![0.0; x.len()];
+    let task = rows_per_task(d) * d;
+    y.par_chunks_mut(task)
+        .zip(x.par_chunks(task))
+        .for_each(|(y, x)| forward_rows(kind, x, gamma, eps, y));
+    y
+}
+
+#[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]
+fn forward_rows(kind: NormKind, x: &[f32], gamma: &[f32], eps: f32, y: &mut [f32]) {
+    let d = gamma.len();
+    for (y, x) in y.chunks_exact_mut(d).zip(x.chunks_exact(d)) {
+        let (centre, rstd) = stats(kind, x, eps);
+        for ((y, &x), &g) in y.iter_mut().zip(x).zip(gamma) {
+            *y = (x - centre) * rstd * g;
+        }
+    }
+}
+
+/// The gradients `(dx, dgamma)` of the normalisation given the output's gradient `grad`:
+/// with `xh` the normalised row and `gg = grad * gamma`,
+/// LayerNorm `dx = rstd (gg - mean(gg) - xh mean(gg xh))`, RMSNorm
+/// `dx = rstd (gg - xh mean(gg xh))`, and `dgamma = sum over rows of grad * xh`.
+pub fn backward(
+    kind: NormKind,
+    x: &[f32],
+    gamma: &[f32],
+    grad: &[f32],
+    eps: f32,
+) -> (Vec<f32>, Vec<f32>) {
+    let d = gamma.len();
+    assert!(
+        d > 0 && x.len() % d == 0,
+        "norm: {} values are not rows of {d}",
+        x.len()
+    );
+    assert_eq!(
+        x.len(),
+        grad.len(),
+        "norm backward: input and gradient sizes differ"
+    );
+    let mut dx = vec![0.0; x.len()];
+    let task = rows_per_task(d) * d;
+    let dgamma = dx
+        .par_chunks_mut(task)
+        .zip(x.par_chunks(task).zip(grad.par_chunks(task)))
+        .map(|(dx, (x, g))| {
+            let mut dgamma = vec![0.0; d];
+            backward_rows(kind, x, gamma, g, eps, dx, &mut dgamma);
+            dgamma
+        })
+        .reduce(
+            || vec![0.0; d],
+            |mut a, b| {
+                a.iter_mut().zip(&b).for_each(|(a, b)| *a += b);
+                a
+            },
+        );
+    (dx, dgamma)
+}
+
+#[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]
+fn backward_rows(
+    kind: NormKind,
+    x: &[f32],
+    gamma: &[f32],
+    grad: &[f32],
+    eps: f32,
+    dx: &mut [f32],
+    dgamma: &mut [f32],
+) {
+    let d = gamma.len();
+    let n = d as f32;
+    for ((dx, x), g) in dx
+        .chunks_exact_mut(d)
+        .zip(x.chunks_exact(d))
+        .zip(grad.chunks_exact(d))
+    {
+        let (centre, rstd) = stats(kind, x, eps);
+        // dx holds gg = grad * gamma until the last loop.
+        for ((dx, &g), &w) in dx.iter_mut().zip(g).zip(gamma) {
+            *dx = g * w;
+        }
+        let mean_gg = match kind {
+            NormKind::Layer => math::sum_map(dx, |v| v) / n,
+            NormKind::Rms => 0.0,
+        };
+        let mean_gg_xh = math::sum_zip(dx, x, |gg, x| gg * (x - centre) * rstd) / n;
+        for (((dx, &x), &g), dg) in dx.iter_mut().zip(x).zip(g).zip(dgamma.iter_mut()) {
+            let xh = (x - centre) * rstd;
+            *dg += g * xh;
+            *dx = rstd * (*dx - mean_gg - xh * mean_gg_xh);
+        }
+    }
+}

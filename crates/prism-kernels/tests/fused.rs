@@ -1,0 +1,190 @@
+//! Each fused kernel against the composition of Burn ops it replaces: values (inference and
+//! autodiff) and the gradients of every input, on ndarray and flex.
+
+// burn-ndarray is deprecated upstream, but the project's tests run on it.
+#![allow(deprecated)]
+
+use burn::tensor::{Device, Distribution, Tensor};
+use prism_kernels::{attention, gelu, is_fused, layer_norm, rms_norm, unfused};
+
+fn devices() -> [(&'static str, Device); 2] {
+    [("ndarray", Device::ndarray()), ("flex", Device::flex())]
+}
+
+fn values<const D: usize>(x: Tensor<D>) -> Vec<f32> {
+    x.into_data()
+        .convert::<f32>()
+        .try_into_vec::<f32>()
+        .unwrap()
+}
+
+fn max_diff<const D: usize>(a: Tensor<D>, b: Tensor<D>) -> f32 {
+    assert_eq!(a.dims(), b.dims());
+    values(a)
+        .iter()
+        .zip(values(b))
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
+}
+
+fn random<const D: usize>(shape: [usize; D], device: &Device) -> Tensor<D> {
+    Tensor::random(shape, Distribution::Normal(0.0, 1.0), device)
+}
+
+/// Compares `fused` with `reference` on the inputs: the values without autodiff, then the
+/// values and every input's gradient of `sum(f(inputs) * w)` under autodiff.
+fn check<const D: usize, const N: usize>(
+    name: &str,
+    shapes: [Vec<usize>; N],
+    fused: impl Fn([Tensor<D>; N]) -> Tensor<D>,
+    reference: impl Fn([Tensor<D>; N]) -> Tensor<D>,
+    tolerance: f32,
+) {
+    for (backend, device) in devices() {
+        device.seed(3);
+        let inputs: [Tensor<D>; N] = shapes.clone().map(|s| {
+            let t: Tensor<D> = Tensor::random(s, Distribution::Normal(0.0, 1.0), &device);
+            t
+        });
+        assert!(
+            is_fused(&inputs[0]),
+            "{name} on {backend}: the fused path must be taken"
+        );
+        let err = max_diff(fused(inputs.clone()), reference(inputs.clone()));
+        assert!(
+            err < tolerance,
+            "{name} on {backend}: forward differs by {err}"
+        );
+
+        let ad = device.autodiff();
+        let tracked = || {
+            inputs
+                .clone()
+                .map(|t| Tensor::from_data(t.into_data(), &ad).require_grad())
+        };
+        let (a, b) = (tracked(), tracked());
+        let (ya, yb) = (fused(a.clone()), reference(b.clone()));
+        let weights = Tensor::<D>::random(ya.dims(), Distribution::Normal(0.0, 1.0), &ad);
+        let err = max_diff(ya.clone().inner(), yb.clone().inner());
+        assert!(
+            err < tolerance,
+            "{name} on {backend} (autodiff): forward differs by {err}"
+        );
+        let (ga, gb) = (
+            (ya * weights.clone()).sum().backward(),
+            (yb * weights).sum().backward(),
+        );
+        for (i, (xa, xb)) in a.iter().zip(&b).enumerate() {
+            let (da, db) = (xa.grad(&ga).unwrap(), xb.grad(&gb).unwrap());
+            let scale = values(db.clone())
+                .iter()
+                .fold(1.0f32, |m, v| m.max(v.abs()));
+            let err = max_diff(da, db) / scale;
+            assert!(
+                err < tolerance,
+                "{name} on {backend}: gradient of input {i} differs by {err} (relative)"
+            );
+        }
+    }
+}
+
+#[test]
+fn gelu_matches_burn() {
+    // The reference is GELU composed from `erf`: Burn's own `gelu` differentiates the tanh
+    // approximation on ndarray (its default `gelu_backward`), 7e-4 off the exact derivative.
+    let exact =
+        |x: Tensor<3>| x.clone() * 0.5 * ((x * std::f64::consts::FRAC_1_SQRT_2).erf() + 1.0);
+    check::<3, 1>(
+        "gelu",
+        [vec![3, 70, 33]],
+        |[x]| gelu(x * 3.0),
+        |[x]| exact(x * 3.0),
+        2e-6,
+    );
+    for (backend, device) in devices() {
+        let x = random([5, 40], &device) * 3.0;
+        let err = max_diff(gelu(x.clone()), unfused::gelu(x));
+        assert!(
+            err < 2e-6,
+            "gelu on {backend}: differs from Burn's by {err}"
+        );
+    }
+}
+
+#[test]
+fn layer_norm_matches_burn() {
+    check::<3, 1>(
+        "layer_norm",
+        [vec![2, 37, 48]],
+        |[x]| layer_norm(x.clone() * 2.0 + 1.0, gamma_of(&x), 1e-5),
+        |[x]| unfused::layer_norm(x.clone() * 2.0 + 1.0, gamma_of(&x), 1e-5),
+        2e-5,
+    );
+}
+
+#[test]
+fn rms_norm_matches_burn() {
+    check::<4, 1>(
+        "rms_norm",
+        [vec![2, 3, 37, 16]],
+        |[x]| rms_norm(x.clone() * 2.0 + 1.0, gamma_of(&x), 1e-5),
+        |[x]| unfused::rms_norm(x.clone() * 2.0 + 1.0, gamma_of(&x), 1e-5),
+        2e-5,
+    );
+}
+
+/// A gain vector that depends on `x` (so that its gradient is checked too): the mean of `x`
+/// over every dimension but the last, plus one.
+fn gamma_of<const D: usize>(x: &Tensor<D>) -> Tensor<1> {
+    let d = x.dims()[D - 1];
+    x.clone().reshape([-1, d as i32]).mean_dim(0).reshape([d]) + 1.0
+}
+
+#[test]
+fn attention_matches_burn() {
+    // 150 tokens: two full query blocks and a partial one.
+    let shape = vec![2, 3, 150, 16];
+    check::<4, 3>(
+        "attention",
+        [shape.clone(), shape.clone(), shape],
+        |[q, k, v]| attention(q * 2.0, k, v),
+        |[q, k, v]| unfused::attention(q * 2.0, k, v),
+        2e-5,
+    );
+}
+
+#[test]
+fn attention_takes_strided_inputs() {
+    // Transposed views are read through a contiguous copy.
+    check::<4, 3>(
+        "attention on transposed inputs",
+        [vec![1, 2, 16, 40], vec![1, 2, 16, 40], vec![1, 2, 16, 40]],
+        |[q, k, v]| attention(q.swap_dims(2, 3), k.swap_dims(2, 3), v.swap_dims(2, 3)),
+        |[q, k, v]| unfused::attention(q.swap_dims(2, 3), k.swap_dims(2, 3), v.swap_dims(2, 3)),
+        2e-5,
+    );
+}
+
+#[test]
+fn frozen_inputs_get_no_gradient_and_the_rest_do() {
+    for (backend, device) in devices() {
+        let ad = device.autodiff();
+        let x = random([4, 8], &ad).require_grad();
+        let gamma = random([8], &ad);
+        let y = layer_norm(x.clone(), gamma.clone(), 1e-5);
+        let grads = (y * random([4, 8], &ad)).sum().backward();
+        assert!(x.grad(&grads).is_some(), "{backend}: x must get a gradient");
+        assert!(
+            gamma.grad(&grads).is_none(),
+            "{backend}: a constant gain gets none"
+        );
+    }
+}
+
+#[test]
+fn other_backends_and_dtypes_take_the_burn_ops() {
+    let x = random([2, 4], &Device::flex()).cast(burn::tensor::DType::F16);
+    assert!(!is_fused(&x));
+    let reference = unfused::gelu(x.clone());
+    assert_eq!(max_diff(gelu(x), reference), 0.0);
+}
