@@ -37,7 +37,7 @@ fn stats(kind: NormKind, row: &[f32], eps: f32) -> (f32, f32) {
 pub fn forward(kind: NormKind, x: &[f32], gamma: &[f32], eps: f32) -> Vec<f32> {
     let d = gamma.len();
     assert!(
-        d > 0 && x.len() % d == 0,
+        d > 0 && x.len().is_multiple_of(d),
         "norm: {} values are not rows of {d}",
         x.len()
     );
@@ -73,7 +73,7 @@ pub fn backward(
 ) -> (Vec<f32>, Vec<f32>) {
     let d = gamma.len();
     assert!(
-        d > 0 && x.len() % d == 0,
+        d > 0 && x.len().is_multiple_of(d),
         "norm: {} values are not rows of {d}",
         x.len()
     );

@@ -4,9 +4,7 @@
 use burn::config::Config;
 use burn::module::Module;
 use burn::nn::{Initializer, Linear, LinearConfig, RmsNorm, RmsNormConfig};
-use burn::tensor::activation::{relu, softmax};
-use burn::tensor::module::attention;
-use burn::tensor::ops::AttentionModuleOptions;
+use burn::tensor::activation::relu;
 use burn::tensor::{DType, Device, FloatDType, Tensor};
 use serde::{Deserialize, Serialize};
 
@@ -60,32 +58,6 @@ impl FeatureMap {
             Self::Elu1 => relu(x.clone()) + x.clamp_max(0.0).exp(),
         }
     }
-}
-
-/// Full softmax attention written as matmul, softmax, matmul (differentiable on every backend):
-/// `softmax(Q K^T / sqrt(d_h)) V` on `[B, H, T, d_h]` tensors.
-pub fn softmax_attention(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
-    let head_dim = q.dims()[3];
-    let scores = q.matmul(k.swap_dims(2, 3)) * (1.0 / (head_dim as f64).sqrt());
-    softmax(scores, 3).matmul(v)
-}
-
-/// Full softmax attention through Burn's fused attention op (no `T x T` matrix where the
-/// backend has a fused kernel): `softmax(Q K^T / sqrt(d_h)) V` on `[B, H, T, d_h]` tensors.
-/// Used for inference; under autodiff Burn decomposes it anyway.
-pub fn fused_attention(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
-    attention(
-        q,
-        k,
-        v,
-        None,
-        None,
-        AttentionModuleOptions {
-            scale: None,
-            softcap: None,
-            is_causal: false,
-        },
-    )
 }
 
 /// Linear attention (SANA; paper Sec. 3.4) on `[B, H, T, d_h]` tensors:
@@ -249,19 +221,18 @@ impl SelfAttention {
             .reshape([3 * batch, self.heads, tokens, head_dim]);
         let part = |i: usize| qkv.clone().narrow(0, i * batch, batch);
         let (q, k, v) = (part(0), part(1), part(2));
-        (self.q_norm.forward(q), self.k_norm.forward(k), v)
+        let norm = |norm: &RmsNorm, x| prism_kernels::rms_norm(x, norm.gamma.val(), norm.epsilon);
+        (norm(&self.q_norm, q), norm(&self.k_norm, k), v)
     }
 
-    /// Self-attention of `x` (`[B, T, d]`) with this layer's kind. Full attention uses Burn's
-    /// fused op when `x` is not tracked by autodiff (inference) and the explicit softmax when a
-    /// gradient is needed.
+    /// Self-attention of `x` (`[B, T, d]`) with this layer's kind. Full attention and the
+    /// QK-norms run prism's fused kernels on the CPU backends ([`prism_kernels`]) and Burn's
+    /// ops elsewhere.
     pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
         let [batch, tokens, width] = x.dims();
         let (q, k, v) = self.project(x);
-        let needs_grad = q.is_tracked() || k.is_tracked() || v.is_tracked();
         let heads_out = match self.kind {
-            AttentionKind::Full if needs_grad => softmax_attention(q, k, v),
-            AttentionKind::Full => fused_attention(q, k, v),
+            AttentionKind::Full => prism_kernels::attention(q, k, v),
             AttentionKind::Linear => linear_attention(q, k, v, self.feature_map, self.linear_eps),
         };
         let merged = heads_out.swap_dims(1, 2).reshape([batch, tokens, width]);
@@ -367,12 +338,12 @@ mod tests {
         let device = ndarray();
         let (q, k, v) = inputs(&device);
         let want = softmax_reference(&values(&q), &values(&k), &values(&v));
-        let fused = fused_attention(q.clone(), k.clone(), v.clone());
-        let decomposed = softmax_attention(q.clone(), k.clone(), v.clone());
+        let fused = prism_kernels::attention(q.clone(), k.clone(), v.clone());
+        let decomposed = prism_kernels::unfused::attention(q.clone(), k.clone(), v.clone());
         // The autodiff path: tracked inputs on an autodiff device.
         let ad = device.clone().autodiff();
         let track = |x: &Tensor<4>| Tensor::<4>::from_data(x.to_data(), &ad).require_grad();
-        let tracked = softmax_attention(track(&q), track(&k), track(&v));
+        let tracked = prism_kernels::attention(track(&q), track(&k), track(&v));
         assert!(tracked.is_tracked());
         for (name, got) in [
             ("fused", fused),

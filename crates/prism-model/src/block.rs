@@ -3,7 +3,6 @@
 use burn::config::Config;
 use burn::module::Module;
 use burn::nn::{Initializer, LayerNorm, LayerNormConfig, Linear, LinearConfig};
-use burn::tensor::activation::gelu;
 use burn::tensor::{Device, Tensor};
 
 use crate::attention::{AttentionKind, FeatureMap, SelfAttention, SelfAttentionConfig};
@@ -77,6 +76,7 @@ impl PrismBlockConfig {
                 fc_in: linear(self.width, hidden, self.init_std),
                 fc_out: linear(hidden, self.width, self.out_init_std()),
             },
+            norm_eps: self.norm_eps,
         }
     }
 }
@@ -91,9 +91,10 @@ pub struct Mlp {
 }
 
 impl Mlp {
-    /// `fc_out(GELU(fc_in(x)))`.
+    /// `fc_out(GELU(fc_in(x)))` (GELU fused on the CPU backends, see [`prism_kernels`]).
     pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
-        self.fc_out.forward(gelu(self.fc_in.forward(x)))
+        self.fc_out
+            .forward(prism_kernels::gelu(self.fc_in.forward(x)))
     }
 }
 
@@ -111,13 +112,26 @@ pub struct PrismBlock {
     pub mlp_norm: LayerNorm,
     /// The 4x GELU MLP.
     pub mlp: Mlp,
+    /// `eps` of the two LayerNorms (Burn's `LayerNorm` does not expose its own), for the fused
+    /// kernel.
+    #[module(skip)]
+    norm_eps: f64,
 }
 
 impl PrismBlock {
     /// The block on `x` (`[B, T, d]`).
     pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
-        let x = x.clone() + self.attention.forward(self.attention_norm.forward(x));
-        x.clone() + self.mlp.forward(self.mlp_norm.forward(x))
+        let x = x.clone() + self.attention.forward(self.norm(&self.attention_norm, x));
+        x.clone() + self.mlp.forward(self.norm(&self.mlp_norm, x))
+    }
+
+    /// One of the block's LayerNorms on `x`: the fused kernel on the CPU backends (the norms
+    /// have no bias; one that has, from foreign weights, takes Burn's op).
+    fn norm(&self, norm: &LayerNorm, x: Tensor<3>) -> Tensor<3> {
+        match norm.beta {
+            None => prism_kernels::layer_norm(x, norm.gamma.val(), self.norm_eps),
+            Some(_) => norm.forward(x),
+        }
     }
 
     /// The dtype of the block's weights (`f32` unless cast for half-precision inference).

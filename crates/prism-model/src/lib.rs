@@ -41,8 +41,7 @@ pub mod views;
 mod test_util;
 
 pub use attention::{
-    AttentionKind, FeatureMap, SelfAttention, SelfAttentionConfig, fused_attention,
-    linear_attention, softmax_attention,
+    AttentionKind, FeatureMap, SelfAttention, SelfAttentionConfig, linear_attention,
 };
 pub use bench::{BenchOptions, BenchRow, bench_forward, protocol_views};
 pub use block::{Mlp, PrismBlock, PrismBlockConfig};
