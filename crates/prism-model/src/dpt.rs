@@ -16,8 +16,8 @@ use burn::config::Config;
 use burn::module::Module;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::{Initializer, Linear, LinearConfig, PaddingConfig2d};
-use burn::tensor::activation::gelu;
 use burn::tensor::{Device, Tensor};
+use prism_kernels::gelu;
 
 /// The upsampling factors of the reassembled maps, from the earliest tap (for patch sizes that
 /// are multiples of 4; otherwise every map stays on the token grid, see [`reassemble_factors`]).

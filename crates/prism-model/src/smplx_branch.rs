@@ -29,7 +29,7 @@ use std::sync::Arc;
 use burn::config::Config;
 use burn::module::{Module, Param};
 use burn::nn::{Initializer, LayerNorm, LayerNormConfig, Linear, LinearConfig};
-use burn::tensor::activation::{gelu, softmax, softplus};
+use burn::tensor::activation::{softmax, softplus};
 use burn::tensor::{Device, Distribution, Tensor, TensorData};
 use glam::{Mat3, Vec3};
 use prism_data::body::joints::{NUM_BETAS, NUM_EXPRESSION, NUM_JOINTS};
@@ -37,6 +37,7 @@ use prism_data::body::rodrigues;
 use prism_data::body::rotation::matrix_to_axis_angle;
 use prism_data::dataset::batch::BodyTensors;
 use prism_data::{BodyLayer, BodyModel, Camera};
+use prism_kernels::gelu;
 use prism_render::mesh::{Fragments, meshes_from_flat, rasterize};
 use prism_render::triplane::sample_triplane;
 
