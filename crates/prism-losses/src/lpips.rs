@@ -163,22 +163,22 @@ impl Lpips {
         let device = pred.device();
         let shift = Tensor::<1>::from_floats(SHIFT, &device).reshape([1, 3, 1, 1]);
         let scale = Tensor::<1>::from_floats(SCALE, &device).reshape([1, 3, 1, 1]);
-        let x = Tensor::cat(vec![pred, gt], 0)
-            .mul_scalar(2.0)
-            .sub_scalar(1.0)
-            .sub(shift)
-            .div(scale);
+        // The prediction and the target go through AlexNet separately: the target's pass is
+        // not tracked (a target and frozen weights), so the backward pass only runs through
+        // the prediction's half.
+        let normalise =
+            |x: Tensor<4>| x.mul_scalar(2.0).sub_scalar(1.0).sub(shift.clone()).div(scale.clone());
+        let pred_taps = self.taps(normalise(pred));
+        let gt_taps = self.taps(normalise(gt));
 
         let lins = [&self.lin0, &self.lin1, &self.lin2, &self.lin3, &self.lin4];
-        self.taps(x)
+        pred_taps
             .into_iter()
+            .zip(gt_taps)
             .zip(lins)
-            .map(|(tap, lin)| {
-                let unit = unit_normalise(tap);
-                let [_, c, h, w] = unit.dims();
-                let a = unit.clone().slice([0..batch, 0..c, 0..h, 0..w]);
-                let b = unit.slice([batch..2 * batch, 0..c, 0..h, 0..w]);
-                let diff = a.sub(b);
+            .map(|((a, b), lin)| {
+                let diff = unit_normalise(a).sub(unit_normalise(b));
+                let [_, _, h, w] = diff.dims();
                 lin.forward(diff.clone().mul(diff))
                     .reshape([batch, h * w])
                     .mean_dim(1)
