@@ -144,3 +144,52 @@ fn bench_needs_a_config_or_a_subcommand() {
     assert!(stderr.contains("--config"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `scripts/peer/backbone.toml` must stay a valid config with the shapes that
+/// `scripts/peer/compare.py` gives the PyTorch peer, and `prism bench` must run it.
+#[test]
+fn the_pytorch_peer_config_has_the_peer_shapes_and_runs() {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scripts/peer/backbone.toml");
+    let c = TrainingConfig::load(&path).unwrap();
+    let m = &c.model;
+    assert_eq!(
+        (m.width, m.heads, m.patch_size, m.mlp_ratio),
+        (256, 4, 8, 4)
+    );
+    assert_eq!((m.stage_one_blocks, m.stage_three_blocks), (2, 4));
+    assert!(!m.smplx_branch && !m.point_branch && !m.gs_head);
+    assert_eq!(c.distill.group_size, 6);
+    assert_eq!((c.train.batch_size, c.train.targets_per_sample), (1, 1));
+    assert_eq!((c.losses.lpips, c.losses.gs), (0.0, 0.0));
+    let compare = std::fs::read_to_string(path.with_file_name("compare.py")).unwrap();
+    let shapes =
+        r#"["--width", "256", "--heads", "4", "--patch", "8", "--blocks", "6", "--group", "6"]"#;
+    assert!(compare.contains(shapes), "compare.py passes other shapes");
+
+    let dir = scratch("peer");
+    let out = prism(
+        &[
+            "bench",
+            "--config",
+            path.to_str().unwrap(),
+            "--res",
+            "16",
+            "--models",
+            "teacher,linear",
+        ]
+        .into_iter()
+        .chain(["--warmup", "0", "--iters", "1", "--train-steps", "0"])
+        .collect::<Vec<_>>(),
+        &dir,
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        table.contains("teacher") && table.contains("linear"),
+        "{table}"
+    );
+}

@@ -6,7 +6,7 @@ cores to themselves) and prints a Markdown table of both times and prism / PyTor
 
 usage (from the repository root, with a Python that has torch):
     python scripts/peer/compare.py [--prism target/release/prism] [--res 128,256]
-        [--backend flex] [--threads 2] [--json out.json]
+        [--backend flex] [--threads 2] [--iters 10] [--train-steps 10] [--json out.json]
 """
 import argparse
 import json
@@ -27,7 +27,7 @@ def run_prism(args):
         out = os.path.join(tmp, "bench.json")
         cmd = [args.prism, "bench", "--config", CONFIG, "--res", args.res,
                "--backend", args.backend, "--warmup", str(args.warmup),
-               "--iters", str(args.iters), "--json", out]
+               "--iters", str(args.iters), "--train-steps", str(args.train_steps), "--json", out]
         subprocess.run(cmd, check=True, stdout=sys.stderr)
         with open(out) as f:
             rows = json.load(f)["rows"]
@@ -41,7 +41,8 @@ def run_prism(args):
 def run_torch(args):
     cmd = [sys.executable, os.path.join(HERE, "torch_backbone.py"), *SHAPES, "--res", args.res,
            "--threads", str(args.threads), "--warmup", str(args.warmup), "--iters",
-           str(args.iters), "--train", "--train-res", str(TRAIN_RES)]
+           str(args.iters), "--train", "--train-res", str(TRAIN_RES), "--train-steps",
+           str(args.train_steps)]
     out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
     times = {}
     for line in out.splitlines():
@@ -60,6 +61,8 @@ def main():
     ap.add_argument("--threads", type=int, default=2, help="PyTorch's intra-op threads")
     ap.add_argument("--warmup", type=int, default=3)
     ap.add_argument("--iters", type=int, default=10)
+    ap.add_argument("--train-steps", type=int, default=10,
+                    help="training steps on each side (the median after 2 warm-up steps)")
     ap.add_argument("--json", help="also write the rows to this file")
     args = ap.parse_args()
     if not os.path.isfile(args.prism):

@@ -166,8 +166,12 @@ impl Lpips {
         // The prediction and the target go through AlexNet separately: the target's pass is
         // not tracked (a target and frozen weights), so the backward pass only runs through
         // the prediction's half.
-        let normalise =
-            |x: Tensor<4>| x.mul_scalar(2.0).sub_scalar(1.0).sub(shift.clone()).div(scale.clone());
+        let normalise = |x: Tensor<4>| {
+            x.mul_scalar(2.0)
+                .sub_scalar(1.0)
+                .sub(shift.clone())
+                .div(scale.clone())
+        };
         let pred_taps = self.taps(normalise(pred));
         let gt_taps = self.taps(normalise(gt));
 
