@@ -19,7 +19,7 @@ use prism_train::{
 /// per test subject. --fast uses the tiny config (120 and 60 steps, 10 views): about a minute.
 #[derive(Args, Debug)]
 pub struct QuickstartArgs {
-    /// The tiny config and fewer steps: about a minute instead of about 11.
+    /// The tiny config and fewer steps: about a minute instead of about 6.
     #[arg(long)]
     fast: bool,
     /// Folder of the two runs and their evaluations [default: runs/quickstart or
