@@ -10,9 +10,16 @@ pub fn gelu<const D: usize>(x: Tensor<D>) -> Tensor<D> {
     burn::tensor::activation::gelu(x)
 }
 
-/// LayerNorm without bias over the last dimension (Burn's `layer_norm`).
+/// LayerNorm without bias over the last dimension (Burn's `layer_norm`), its statistics taken
+/// in f32 for half-precision inputs (as Burn's `LayerNorm` module).
 pub fn layer_norm<const D: usize>(x: Tensor<D>, gamma: Tensor<1>, eps: f64) -> Tensor<D> {
-    burn::tensor::module::layer_norm(x, gamma, None, eps)
+    let dtype = x.dtype();
+    if matches!(dtype, DType::F16 | DType::BF16) {
+        burn::tensor::module::layer_norm(x.cast(DType::F32), gamma.cast(DType::F32), None, eps)
+            .cast(dtype)
+    } else {
+        burn::tensor::module::layer_norm(x, gamma, None, eps)
+    }
 }
 
 /// RMSNorm over the last dimension, `x / sqrt(mean(x^2) + eps) * gamma`, the mean of squares

@@ -188,3 +188,17 @@ fn other_backends_and_dtypes_take_the_burn_ops() {
     let reference = unfused::gelu(x.clone());
     assert_eq!(max_diff(gelu(x), reference), 0.0);
 }
+
+#[test]
+fn half_precision_norms_take_their_statistics_in_f32() {
+    let device = Device::flex();
+    let x = random([3, 64], &device) * 50.0 + 300.0;
+    let gamma = random([64], &device);
+    let want = unfused::layer_norm(x.clone(), gamma.clone(), 1e-5);
+    let half = |t: Tensor<2>| t.cast(burn::tensor::DType::F16);
+    let got = layer_norm(half(x), gamma.cast(burn::tensor::DType::F16), 1e-5);
+    assert_eq!(got.dtype(), burn::tensor::DType::F16);
+    // f16 keeps about 3 digits of the normalised values (|y| up to a few units).
+    let err = max_diff(got.cast(burn::tensor::DType::F32), want);
+    assert!(err < 2e-2, "f16 LayerNorm differs by {err}");
+}
