@@ -183,11 +183,21 @@ fn resize(x: Tensor<4>, height: usize, width: usize) -> Tensor<4> {
     upsample_axis(upsample_axis(x, height / h, 2), width / w, 3)
 }
 
-/// A per-pixel linear layer on `[B, C, H, W]`.
+/// A per-pixel linear layer on `[B, C, H, W]`: `W^T x` over the channels of every pixel,
+/// one matrix product on the channel-first layout (no permutation copies at full resolution).
 fn per_pixel(linear: &Linear, x: Tensor<4>) -> Tensor<4> {
-    linear
-        .forward(x.permute([0, 2, 3, 1]))
-        .permute([0, 3, 1, 2])
+    let [b, c, h, w] = x.dims();
+    let weight = linear.weight.val();
+    let out = weight.dims()[1];
+    let y = weight
+        .transpose()
+        .unsqueeze::<3>()
+        .matmul(x.reshape([b, c, h * w]));
+    let y = match &linear.bias {
+        Some(bias) => y + bias.val().reshape([1, out, 1]),
+        None => y,
+    };
+    y.reshape([b, out, h, w])
 }
 
 impl DptHead {
@@ -231,6 +241,24 @@ impl DptHead {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn per_pixel_is_the_linear_layer_on_every_pixel() {
+        let device = crate::test_util::ndarray();
+        device.seed(2);
+        let linear = burn::nn::LinearConfig::new(5, 3).init(&device);
+        let x = Tensor::<4>::random([2, 5, 4, 6], burn::tensor::Distribution::Default, &device);
+        let want = linear
+            .forward(x.clone().permute([0, 2, 3, 1]))
+            .permute([0, 3, 1, 2]);
+        let got = per_pixel(&linear, x);
+        assert_eq!(got.dims(), [2, 3, 4, 6]);
+        let err = crate::test_util::max_abs_diff(
+            &crate::test_util::values(&got),
+            &crate::test_util::values(&want),
+        );
+        assert!(err < 1e-6, "max error {err}");
+    }
 
     #[test]
     fn taps_are_evenly_spaced_and_end_at_the_last_block() {
