@@ -125,14 +125,13 @@ impl PrismBlock {
         x.clone() + self.mlp.forward(self.norm(&self.mlp_norm, x))
     }
 
-    /// One of the block's LayerNorms on `x`: the fused kernel where it applies (f32 on a CPU
-    /// backend, no bias), Burn's module otherwise (it widens half precision to f32 for the
-    /// statistics).
+    /// One of the block's LayerNorms on `x` through [`prism_kernels::layer_norm`] (fused on
+    /// the CPU backends, Burn's op elsewhere); one with a bias, from foreign weights, takes
+    /// Burn's module.
     fn norm(&self, norm: &LayerNorm, x: Tensor<3>) -> Tensor<3> {
-        if norm.beta.is_none() && prism_kernels::is_fused(&x) {
-            prism_kernels::layer_norm(x, norm.gamma.val(), self.norm_eps)
-        } else {
-            norm.forward(x)
+        match norm.beta {
+            None => prism_kernels::layer_norm(x, norm.gamma.val(), self.norm_eps),
+            Some(_) => norm.forward(x),
         }
     }
 
