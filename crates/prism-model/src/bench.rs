@@ -1,7 +1,8 @@
 //! Forward-time benchmark of the model (what `prism bench` and `prism bench model` run): time
 //! per frame of one (source, target) pair, median over repeated runs after warm-up, inference
-//! mode (no autodiff, so Full attention goes through Burn's fused op), and the peak memory of
-//! the timed runs ([`MemoryProbe`]).
+//! mode (no autodiff; Full attention through prism's attention kernel on the CPU backends and
+//! Burn's attention op on the GPU ones), and the peak memory of the timed runs
+//! ([`MemoryProbe`]).
 
 use std::time::Instant;
 

@@ -4,7 +4,7 @@
 //! and of the "copy the source view" baseline.
 //!
 //! The step counts are scaled down from the configs' so the whole job fits a time budget on a
-//! 2-core CPU ([`QuickstartPlan::standard`]: the small config, 11.2 minutes measured;
+//! 2-core CPU ([`QuickstartPlan::standard`]: the small config, 5.8 minutes measured;
 //! [`QuickstartPlan::fast`]: the tiny config, a few minutes); the distillation schedule is
 //! compressed to the student's steps ([`compress_schedule`]).
 
@@ -43,7 +43,7 @@ pub struct QuickstartPlan {
 
 impl QuickstartPlan {
     /// The default plan: the small config, 300 teacher and 150 student steps (the config's
-    /// 600 teacher steps alone take about 15 minutes on the 2-core CPU), the protocol's 100
+    /// 600 teacher steps alone take about 8 minutes on the 2-core CPU), the protocol's 100
     /// views per test subject (the two evaluations take about 1.5 minutes).
     ///
     /// # Errors
