@@ -137,29 +137,33 @@ pub fn forward(q: &[f32], k: &[f32], v: &[f32], dims: Dims, scale: f32) -> (Vec<
         .for_each(|(h, (o, lse))| {
             let span = h * dims.per_head()..(h + 1) * dims.per_head();
             let (q, k, v) = (&q[span.clone()], &k[span.clone()], &v[span]);
+            // One score buffer per worker thread, reused by its blocks (gemm overwrites it).
             o.par_chunks_mut(BLOCK * head_dim)
                 .zip(lse.par_chunks_mut(BLOCK))
                 .enumerate()
-                .for_each(|(b, (o, lse))| {
-                    let rows = lse.len();
-                    let q = &q[b * BLOCK * head_dim..][..rows * head_dim];
-                    let mut p = vec![0.0; rows * tokens];
-                    matmul(
-                        &mut p,
-                        false,
-                        View::rows(q, rows, head_dim),
-                        View::transposed(k, head_dim, tokens),
-                        scale,
-                    );
-                    softmax_rows(&mut p, tokens, lse);
-                    matmul(
-                        o,
-                        false,
-                        View::rows(&p, rows, tokens),
-                        View::rows(v, tokens, head_dim),
-                        1.0,
-                    );
-                });
+                .for_each_init(
+                    || vec![0.0; BLOCK.min(tokens) * tokens],
+                    |p, (b, (o, lse))| {
+                        let rows = lse.len();
+                        let q = &q[b * BLOCK * head_dim..][..rows * head_dim];
+                        let p = &mut p[..rows * tokens];
+                        matmul(
+                            p,
+                            false,
+                            View::rows(q, rows, head_dim),
+                            View::transposed(k, head_dim, tokens),
+                            scale,
+                        );
+                        softmax_rows(p, tokens, lse);
+                        matmul(
+                            o,
+                            false,
+                            View::rows(p, rows, tokens),
+                            View::rows(v, tokens, head_dim),
+                            1.0,
+                        );
+                    },
+                );
         });
     (o, lse)
 }
