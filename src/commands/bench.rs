@@ -12,6 +12,7 @@ use prism_data::dataset::DatasetReader;
 use prism_model::{
     AttentionKind, BenchOptions, BenchRow, MemoryProbe, Precision, bench_forward, load_config,
 };
+use prism_render::transfer::geometry_host_reads;
 use prism_train::{
     RunOptions, TeacherTask, TrainingConfig, Validator, ensure_synthetic_dataset, load_model,
     read_metrics, train,
@@ -68,7 +69,8 @@ struct TableArgs {
     /// into the cache on first use].
     #[arg(long, value_name = "DIR")]
     data: Option<PathBuf>,
-    /// Also write `{"rows": [{"model", "res", "tokens", "ms", "fps", "peak_mem_bytes"}]}` to
+    /// Also write `{"rows": [{"model", "res", "tokens", "ms", "fps", "peak_mem_bytes",
+    /// "geometry_host_reads"}]}` to
     /// this file (the training step is the row `train_step`, `fps` its steps per second).
     /// `peak_mem_bytes` is the peak of the timed runs: the memory pools' bytes on GPU
     /// backends, the heap's growth above its size before the runs on the CPU ones (for the
@@ -111,7 +113,8 @@ struct ModelBenchArgs {
     /// Timed runs (the median is reported).
     #[arg(long, default_value_t = 10)]
     iters: usize,
-    /// Also write `{"rows": [{"model", "res", "tokens", "ms", "fps", "peak_mem_bytes"}]}` to
+    /// Also write `{"rows": [{"model", "res", "tokens", "ms", "fps", "peak_mem_bytes",
+    /// "geometry_host_reads"}]}` to
     /// this file (`peak_mem_bytes`: the timed runs' peak, the memory pools' bytes on GPU
     /// backends, the heap's growth above its size before the runs on the CPU ones).
     #[arg(long, value_name = "FILE")]
@@ -326,7 +329,9 @@ impl TableArgs {
         let mut options = RunOptions::new(&out, self.backend);
         options.data = Some(data);
         let probe = MemoryProbe::start(&self.backend.device()?);
+        let reads = geometry_host_reads();
         let result = train(&config, &TeacherTask::default(), &options);
+        let reads = (geometry_host_reads() - reads) as f64 / steps as f64;
         let peak = probe.peak_bytes();
         let metrics = result.and_then(|_| read_metrics(&out.join(prism_train::METRICS_FILE)));
         let _ = std::fs::remove_dir_all(&out);
@@ -347,6 +352,7 @@ impl TableArgs {
             ms,
             fps: 1e3 / ms,
             peak_mem_bytes: peak,
+            geometry_host_reads: reads,
         })
     }
 }

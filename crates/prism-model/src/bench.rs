@@ -10,6 +10,7 @@ use burn::tensor::{Device, Distribution, Tensor};
 use glam::Vec3;
 use prism_data::rays::plucker_rays;
 use prism_data::{Camera, Intrinsics};
+use prism_render::transfer::geometry_host_reads;
 use serde::Serialize;
 
 use crate::memory::MemoryProbe;
@@ -49,6 +50,9 @@ pub struct BenchRow {
     /// pool's reservation on wgpu / cuda, the growth of the process's resident set on the CPU
     /// backends (Linux); `None` where neither is available.
     pub peak_mem_bytes: Option<u64>,
+    /// Tensors the geometry operations read back to the host per frame (per step for the
+    /// training step): 0 where they run on the device (`prism_render::transfer`).
+    pub geometry_host_reads: f64,
 }
 
 /// How to time.
@@ -91,6 +95,7 @@ pub fn bench_forward(
         run();
     }
     let mut probe = MemoryProbe::start(device);
+    let reads = geometry_host_reads();
     let mut times: Vec<f64> = (0..options.iters.max(1))
         .map(|_| {
             let start = Instant::now();
@@ -100,6 +105,7 @@ pub fn bench_forward(
             ms
         })
         .collect();
+    let reads = (geometry_host_reads() - reads) as f64 / times.len() as f64;
     times.sort_by(|a, b| a.total_cmp(b));
     let ms = median(&times);
     let patch = model.tokenizer.patch_size();
@@ -110,6 +116,7 @@ pub fn bench_forward(
         ms,
         fps: 1e3 / ms,
         peak_mem_bytes: probe.peak_bytes(),
+        geometry_host_reads: reads,
     }
 }
 

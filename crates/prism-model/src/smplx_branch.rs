@@ -237,8 +237,10 @@ impl SmplxTargets {
     }
 }
 
-/// Reads a tensor to host memory.
+/// Reads a tensor to host memory, counted as a geometry read (the body is posed and the mesh
+/// rasterized on the host: see `prism_render::transfer`).
 fn host<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    prism_render::transfer::count_geometry_read();
     t.into_data()
         .convert::<f32>()
         .try_to_vec::<f32>()

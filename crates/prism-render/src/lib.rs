@@ -12,9 +12,11 @@
 
 pub mod error;
 pub mod files;
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+mod launch;
 pub mod mesh;
 pub mod splat;
-mod transfer;
+pub mod transfer;
 pub mod triplane;
 
 pub use error::RenderError;

@@ -121,7 +121,20 @@ impl Weights {
 }
 
 fn check_gradients(seed: u64, camera: Camera, channels: usize) {
-    let dev = device();
+    check_gradients_on(&device(), seed, camera, channels);
+}
+
+/// The device kernels (wgpu) against finite differences on the same scenes.
+#[cfg(feature = "wgpu")]
+#[test]
+fn device_gradients_match_finite_differences() {
+    let _serial = common::serial();
+    let Some(gpu) = common::wgpu() else { return };
+    check_gradients_on(&gpu, 3, orbit_camera(24, 20, 40.0, 10.0, -5.0), 3);
+}
+
+fn check_gradients_on(dev: &Device, seed: u64, camera: Camera, channels: usize) {
+    let dev = dev.clone();
     let ad = dev.clone().autodiff();
     let (w, h) = (
         camera.intrinsics.width as usize,

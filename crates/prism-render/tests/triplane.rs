@@ -9,6 +9,9 @@ use prism_render::triplane::{PLANE_AXES, sample_triplane};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+#[cfg(feature = "wgpu")]
+mod common;
+
 fn device() -> Device {
     BackendKind::Ndarray.device().unwrap()
 }
@@ -86,7 +89,57 @@ fn forward_matches_grid_sample() {
 
 #[test]
 fn gradients_match_finite_differences() {
-    let device = device();
+    check_gradients(&device());
+}
+
+/// The device kernels (wgpu) against finite differences, and against the host path on
+/// coordinates that also leave the planes (border clamping).
+#[cfg(feature = "wgpu")]
+#[test]
+fn the_device_kernels_match_finite_differences_and_the_host() {
+    let _serial = common::serial();
+    let Some(gpu) = common::wgpu() else { return };
+    check_gradients(&gpu);
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let (b, c, r, h, w) = (2, 5, 7, 6, 5);
+    let planes = random(&mut rng, 3 * c * r * r, -1.0, 1.0);
+    let coords = random(&mut rng, b * 3 * h * w, -1.3, 1.3);
+    let weights = random(&mut rng, b * c * h * w, -1.0, 1.0);
+    let run = |device: &Device| {
+        let ad = device.clone().autodiff();
+        let p = Tensor::<4>::from_data(TensorData::new(planes.clone(), [3, c, r, r]), &ad)
+            .require_grad();
+        let x = Tensor::<4>::from_data(TensorData::new(coords.clone(), [b, 3, h, w]), &ad)
+            .require_grad();
+        let wt = Tensor::<4>::from_data(TensorData::new(weights.clone(), [b, c, h, w]), &ad);
+        let out = sample_triplane(p.clone(), x.clone()).unwrap();
+        let grads = (out.clone() * wt).sum().backward();
+        [out, p.grad(&grads).unwrap(), x.grad(&grads).unwrap()]
+    };
+    let reads = prism_render::transfer::geometry_host_reads();
+    let got = run(&gpu);
+    assert_eq!(
+        prism_render::transfer::geometry_host_reads(),
+        reads,
+        "triplane sampling read from the device"
+    );
+    let got = got.map(host);
+    let want = run(&device()).map(host);
+    for (name, (a, b)) in ["samples", "plane gradients", "coordinate gradients"]
+        .iter()
+        .zip(got.iter().zip(&want))
+    {
+        for (x, y) in a.iter().zip(b) {
+            assert!(
+                (x - y).abs() <= 1e-5 * (1.0 + y.abs()),
+                "{name}: {x} vs {y}"
+            );
+        }
+    }
+}
+
+fn check_gradients(device: &Device) {
+    let device = device.clone();
     let ad = device.clone().autodiff();
     let mut rng = ChaCha8Rng::seed_from_u64(2);
     let (b, c, r, h, w) = (2, 3, 6, 3, 4);

@@ -6,9 +6,12 @@
 //! - [`ply`] reads and writes the standard 3DGS PLY layout ([`GaussianCloud`]);
 //!   [`snapshot`] renders one to an RGB image, in a camera read by [`camera_file`].
 //!
-//! The computation runs on the host (CPU, parallel over tiles) for every backend: see `host`.
+//! The CPU backends render on the host (parallel over tiles, `host`), the GPU backends in
+//! CubeCL kernels on the device (`device`), from one definition of the constants and tile size.
 
 pub mod camera_file;
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+mod device;
 mod host;
 pub mod op;
 pub mod ply;

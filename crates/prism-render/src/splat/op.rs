@@ -5,10 +5,11 @@
 //! `Autodiff<B, C>` (the forward plus a [`Backward`] step registered in the graph). The generated
 //! `impl SplatBackend for Dispatch` routes a call to the backend of its input tensors.
 //!
-//! Every backend is served by the host rasterizer (`host`): the inputs are read to host memory,
-//! rendered there and the result is uploaded to the inputs' device. The forward pass keeps its
-//! tape (projections, tile lists, final transmittances) in the autodiff graph, so the backward
-//! pass does not recompute it.
+//! The CPU backends (flex, ndarray) are served by the host rasterizer (`host`), the GPU backends
+//! by its CubeCL twin (`device`), which never reads the Gaussians back to the host. Both share
+//! one set of constants and one tile size (`host`'s). The forward pass keeps its tape
+//! (projections, depth order, final transmittances) in the autodiff graph, so the backward pass
+//! does not recompute it.
 
 // burn-ndarray is deprecated upstream, but the project's tests run on it.
 #![allow(deprecated)]
@@ -28,7 +29,8 @@ use super::host::{self, CameraTape, HostGaussians};
 use crate::transfer::{to_device, to_host};
 
 /// The tensor inputs of [`SplatBackend::splat_rasterize`], as backend primitives.
-#[derive(ExtensionType)]
+#[derive(ExtensionType, Clone, Debug)]
+#[extension_type(fusion: cfg(any(feature = "wgpu", feature = "cuda")))]
 pub struct SplatInputs<B: Backend> {
     /// `[B, N, 3]` world-space centres.
     pub means: FloatTensor<B>,
@@ -57,6 +59,27 @@ pub trait SplatBackend: Backend {
     ) -> FloatTensor<Self>;
 }
 
+/// How a backend runs the rasterizer under autodiff: the forward pass together with the tape
+/// its reverse pass reads, and that reverse pass. The CPU backends keep the tape in host memory
+/// (`host`); the cube backend keeps it in device tensors (`device`).
+pub trait SplatTaped: Backend {
+    /// What the reverse pass needs from the forward pass.
+    type Tape: Clone + Send + Sync + std::fmt::Debug + 'static;
+
+    /// The forward pass: the `[B, C + 2, H, W]` image and the tape.
+    fn forward_taped(
+        inputs: SplatInputs<Self>,
+        cameras: &SplatCameras,
+    ) -> (FloatTensor<Self>, Self::Tape);
+
+    /// The gradients of every input, in the inputs' shapes, from `dL/d(image)`.
+    fn backward_taped(
+        tape: Self::Tape,
+        cameras: &SplatCameras,
+        grad: FloatTensor<Self>,
+    ) -> SplatInputs<Self>;
+}
+
 /// The host inputs and the shapes of the original primitives.
 #[derive(Debug)]
 struct Inputs {
@@ -64,19 +87,13 @@ struct Inputs {
     shapes: [Vec<usize>; 5],
 }
 
-fn inputs_to_host<B: Backend>(
-    means: FloatTensor<B>,
-    log_scales: FloatTensor<B>,
-    rotations: FloatTensor<B>,
-    opacity_logits: FloatTensor<B>,
-    features: FloatTensor<B>,
-) -> Inputs {
+fn inputs_to_host<B: Backend>(inputs: SplatInputs<B>) -> Inputs {
     let shapes = [
-        means.shape().to_vec(),
-        log_scales.shape().to_vec(),
-        rotations.shape().to_vec(),
-        opacity_logits.shape().to_vec(),
-        features.shape().to_vec(),
+        inputs.means.shape().to_vec(),
+        inputs.log_scales.shape().to_vec(),
+        inputs.rotations.shape().to_vec(),
+        inputs.opacity_logits.shape().to_vec(),
+        inputs.features.shape().to_vec(),
     ];
     let (batch, count, channels) = (shapes[0][0], shapes[0][1], shapes[4][2]);
     Inputs {
@@ -84,11 +101,11 @@ fn inputs_to_host<B: Backend>(
             batch,
             count,
             channels,
-            means: to_host::<B>(means),
-            log_scales: to_host::<B>(log_scales),
-            rotations: to_host::<B>(rotations),
-            opacity_logits: to_host::<B>(opacity_logits),
-            features: to_host::<B>(features),
+            means: to_host::<B>(inputs.means),
+            log_scales: to_host::<B>(inputs.log_scales),
+            rotations: to_host::<B>(inputs.rotations),
+            opacity_logits: to_host::<B>(inputs.opacity_logits),
+            features: to_host::<B>(inputs.features),
         },
         shapes,
     }
@@ -108,59 +125,142 @@ fn output_shape(gaussians: &HostGaussians, cameras: &[Camera]) -> Vec<usize> {
     ]
 }
 
-/// The forward pass on the host for any backend: returns the output primitive, and the tape
-/// when asked for.
-fn forward_on_host<B: Backend>(
+/// The host rasterizer's tape: its inputs, per camera what `host::backward` reads, and the
+/// device the gradients go back to.
+#[derive(Debug)]
+pub struct HostTape<B: Backend> {
+    inputs: Inputs,
+    tapes: Vec<CameraTape>,
+    device: B::Device,
+}
+
+/// The forward pass on the host for any backend: the output primitive and the tape.
+fn host_forward<B: Backend>(
     inputs: SplatInputs<B>,
     cameras: &SplatCameras,
-) -> (FloatTensor<B>, Inputs, Vec<CameraTape>) {
+) -> (FloatTensor<B>, HostTape<B>) {
     let device = inputs.means.device();
-    let host = inputs_to_host::<B>(
-        inputs.means,
-        inputs.log_scales,
-        inputs.rotations,
-        inputs.opacity_logits,
-        inputs.features,
-    );
+    let host = inputs_to_host::<B>(inputs);
     let (image, tapes) = host::forward(&host.gaussians, &cameras.0);
     let shape = output_shape(&host.gaussians, &cameras.0);
-    (to_device::<B>(image, shape, &device), host, tapes)
+    let output = to_device::<B>(image, shape, &device);
+    let tape = HostTape {
+        inputs: host,
+        tapes,
+        device,
+    };
+    (output, tape)
 }
 
-impl SplatBackend for Flex {
-    fn splat_rasterize(inputs: SplatInputs<Self>, cameras: SplatCameras) -> FloatTensor<Self> {
-        forward_on_host::<Self>(inputs, &cameras).0
+/// The reverse pass on the host: reverse compositing and the chain rule through the projection
+/// (`host::backward`).
+fn host_backward<B: Backend>(
+    tape: &HostTape<B>,
+    cameras: &SplatCameras,
+    grad: FloatTensor<B>,
+) -> SplatInputs<B> {
+    let grad_out = to_host::<B>(grad);
+    let g = host::backward(&tape.inputs.gaussians, &cameras.0, &tape.tapes, &grad_out);
+    let [means, log_scales, rotations, opacity_logits, features] = [
+        g.means,
+        g.log_scales,
+        g.rotations,
+        g.opacity_logits,
+        g.features,
+    ]
+    .into_iter()
+    .zip(&tape.inputs.shapes)
+    .map(|(value, shape)| to_device::<B>(value, shape.clone(), &tape.device))
+    .collect::<Vec<_>>()
+    .try_into()
+    .expect("five gradients");
+    SplatInputs {
+        means,
+        log_scales,
+        rotations,
+        opacity_logits,
+        features,
     }
 }
 
-impl SplatBackend for NdArray {
-    fn splat_rasterize(inputs: SplatInputs<Self>, cameras: SplatCameras) -> FloatTensor<Self> {
-        forward_on_host::<Self>(inputs, &cameras).0
-    }
+/// The CPU backends: rasterize on the host, keep the tape there.
+macro_rules! host_splat {
+    ($backend:ty) => {
+        impl SplatBackend for $backend {
+            fn splat_rasterize(
+                inputs: SplatInputs<Self>,
+                cameras: SplatCameras,
+            ) -> FloatTensor<Self> {
+                host_forward::<Self>(inputs, &cameras).0
+            }
+        }
+
+        impl SplatTaped for $backend {
+            type Tape = Arc<HostTape<Self>>;
+
+            fn forward_taped(
+                inputs: SplatInputs<Self>,
+                cameras: &SplatCameras,
+            ) -> (FloatTensor<Self>, Self::Tape) {
+                let (output, tape) = host_forward::<Self>(inputs, cameras);
+                (output, Arc::new(tape))
+            }
+
+            fn backward_taped(
+                tape: Self::Tape,
+                cameras: &SplatCameras,
+                grad: FloatTensor<Self>,
+            ) -> SplatInputs<Self> {
+                host_backward::<Self>(&tape, cameras, grad)
+            }
+        }
+    };
 }
 
+host_splat!(Flex);
+host_splat!(NdArray);
+
+/// The GPU backends: the CubeCL kernels of [`crate::splat::device`], tape on the device.
 #[cfg(any(feature = "wgpu", feature = "cuda"))]
-impl SplatBackend for burn::backend::Cube {
-    fn splat_rasterize(inputs: SplatInputs<Self>, cameras: SplatCameras) -> FloatTensor<Self> {
-        forward_on_host::<Self>(inputs, &cameras).0
+mod on_device {
+    use super::*;
+    use crate::splat::device::{DeviceTape, SplatDeviceOps};
+    use burn::backend::Cube;
+
+    impl SplatBackend for Cube {
+        fn splat_rasterize(inputs: SplatInputs<Self>, cameras: SplatCameras) -> FloatTensor<Self> {
+            Self::splat_device_forward(inputs, cameras).image
+        }
+    }
+
+    impl SplatTaped for Cube {
+        type Tape = (SplatInputs<Self>, DeviceTape<Self>);
+
+        fn forward_taped(
+            inputs: SplatInputs<Self>,
+            cameras: &SplatCameras,
+        ) -> (FloatTensor<Self>, Self::Tape) {
+            let tape = Self::splat_device_forward(inputs.clone(), cameras.clone());
+            (tape.image.clone(), (inputs, tape))
+        }
+
+        fn backward_taped(
+            (inputs, tape): Self::Tape,
+            cameras: &SplatCameras,
+            grad: FloatTensor<Self>,
+        ) -> SplatInputs<Self> {
+            Self::splat_device_backward(inputs, tape, grad, cameras.clone())
+        }
     }
 }
 
-/// Everything the backward pass needs, shared (not copied) by the graph.
-#[derive(Debug)]
-struct Tape {
-    inputs: Inputs,
-    cameras: SplatCameras,
-    tapes: Vec<CameraTape>,
-}
-
-/// The backward step of [`SplatBackend::splat_rasterize`]: reverse compositing and the chain
-/// rule through the projection, on the host (see `host::backward`).
+/// The backward step of [`SplatBackend::splat_rasterize`] under autodiff: the backend's
+/// [`SplatTaped::backward_taped`], registered for the inputs that are tracked.
 #[derive(Debug)]
 struct SplatBackward;
 
-impl<B: Backend> Backward<B, 5> for SplatBackward {
-    type State = (Arc<Tape>, B::Device);
+impl<B: SplatTaped> Backward<B, 5> for SplatBackward {
+    type State = (B::Tape, SplatCameras);
 
     fn backward(
         self,
@@ -168,14 +268,9 @@ impl<B: Backend> Backward<B, 5> for SplatBackward {
         grads: &mut Gradients,
         _checkpointer: &mut Checkpointer,
     ) {
-        let grad_out = to_host::<B>(grads.consume::<B>(&ops.node));
-        let (tape, device) = ops.state;
-        let g = host::backward(
-            &tape.inputs.gaussians,
-            &tape.cameras.0,
-            &tape.tapes,
-            &grad_out,
-        );
+        let grad_out = grads.consume::<B>(&ops.node);
+        let (tape, cameras) = ops.state;
+        let g = B::backward_taped(tape, &cameras, grad_out);
         let values = [
             g.means,
             g.log_scales,
@@ -183,16 +278,15 @@ impl<B: Backend> Backward<B, 5> for SplatBackward {
             g.opacity_logits,
             g.features,
         ];
-        for ((parent, value), shape) in ops.parents.into_iter().zip(values).zip(&tape.inputs.shapes)
-        {
+        for (parent, value) in ops.parents.into_iter().zip(values) {
             if let Some(node) = parent {
-                grads.register::<B>(node.id, to_device::<B>(value, shape.clone(), &device));
+                grads.register::<B>(node.id, value);
             }
         }
     }
 }
 
-impl<B: Backend, C: CheckpointStrategy> SplatBackend for Autodiff<B, C> {
+impl<B: SplatTaped, C: CheckpointStrategy> SplatBackend for Autodiff<B, C> {
     fn splat_rasterize(inputs: SplatInputs<Self>, cameras: SplatCameras) -> FloatTensor<Self> {
         let nodes = [
             inputs.means.node(),
@@ -210,16 +304,10 @@ impl<B: Backend, C: CheckpointStrategy> SplatBackend for Autodiff<B, C> {
         };
         match SplatBackward.prepare::<C>(nodes).compute_bound().stateful() {
             OpsKind::Tracked(prep) => {
-                let device = inner.means.device();
-                let (output, inputs, tapes) = forward_on_host::<B>(inner, &cameras);
-                let tape = Tape {
-                    inputs,
-                    cameras,
-                    tapes,
-                };
-                prep.finish((Arc::new(tape), device), output)
+                let (output, tape) = B::forward_taped(inner, &cameras);
+                prep.finish((tape, cameras), output)
             }
-            OpsKind::UnTracked(prep) => prep.finish(forward_on_host::<B>(inner, &cameras).0),
+            OpsKind::UnTracked(prep) => prep.finish(B::forward_taped(inner, &cameras).0),
         }
     }
 }

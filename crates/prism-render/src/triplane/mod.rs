@@ -12,6 +12,8 @@
 //! the planes and the coordinates), computed on the host in parallel for every backend (see
 //! [`op`]).
 
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+mod device;
 mod host;
 pub mod op;
 

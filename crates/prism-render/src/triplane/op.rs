@@ -1,7 +1,8 @@
 //! Triplane sampling as a Burn backend extension with a hand-written backward pass (the same
-//! mechanism as the Gaussian rasterizer, see [`crate::splat::op`]): every backend samples on
-//! the host (`host.rs`), and `Autodiff<B, C>` registers a [`Backward`] step that returns the
-//! gradients of the planes and of the coordinates.
+//! mechanism as the Gaussian rasterizer, see [`crate::splat::op`]): the CPU backends sample on
+//! the host (`host.rs`), the GPU backends in CubeCL kernels (`device.rs`), and `Autodiff<B, C>`
+//! registers a [`Backward`] step that returns the gradients of the planes and of the
+//! coordinates.
 
 // burn-ndarray is deprecated upstream, but the project's tests run on it.
 #![allow(deprecated)]
@@ -74,31 +75,118 @@ fn forward_on_host<B: Backend>(
     (to_device::<B>(out, shape, &device), inputs)
 }
 
-impl TriplaneBackend for Flex {
-    fn triplane_sample(planes: FloatTensor<Self>, coords: FloatTensor<Self>) -> FloatTensor<Self> {
-        forward_on_host::<Self>(planes, coords).0
-    }
+/// How a backend samples under autodiff: the forward pass with the tape its reverse pass
+/// reads, and that reverse pass (host memory on the CPU backends, device tensors on the GPU).
+pub trait TriplaneTaped: Backend {
+    /// What the reverse pass needs from the forward pass.
+    type Tape: Clone + Send + Sync + std::fmt::Debug + 'static;
+
+    /// The samples and the tape.
+    fn forward_taped(
+        planes: FloatTensor<Self>,
+        coords: FloatTensor<Self>,
+    ) -> (FloatTensor<Self>, Self::Tape);
+
+    /// The gradients of the planes and of the coordinates from `dL/d(samples)`.
+    fn backward_taped(
+        tape: Self::Tape,
+        grad: FloatTensor<Self>,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>);
 }
 
-impl TriplaneBackend for NdArray {
-    fn triplane_sample(planes: FloatTensor<Self>, coords: FloatTensor<Self>) -> FloatTensor<Self> {
-        forward_on_host::<Self>(planes, coords).0
-    }
+/// The host tape: the inputs in host memory and the device the gradients go back to.
+#[derive(Debug)]
+pub struct HostTape<B: Backend> {
+    inputs: HostInputs,
+    device: B::Device,
 }
 
+/// The CPU backends: sample on the host, keep the tape there.
+macro_rules! host_triplane {
+    ($backend:ty) => {
+        impl TriplaneBackend for $backend {
+            fn triplane_sample(
+                planes: FloatTensor<Self>,
+                coords: FloatTensor<Self>,
+            ) -> FloatTensor<Self> {
+                forward_on_host::<Self>(planes, coords).0
+            }
+        }
+
+        impl TriplaneTaped for $backend {
+            type Tape = Arc<HostTape<Self>>;
+
+            fn forward_taped(
+                planes: FloatTensor<Self>,
+                coords: FloatTensor<Self>,
+            ) -> (FloatTensor<Self>, Self::Tape) {
+                let device = coords.device();
+                let (output, inputs) = forward_on_host::<Self>(planes, coords);
+                (output, Arc::new(HostTape { inputs, device }))
+            }
+
+            fn backward_taped(
+                tape: Self::Tape,
+                grad: FloatTensor<Self>,
+            ) -> (FloatTensor<Self>, FloatTensor<Self>) {
+                let grad_out = to_host::<Self>(grad);
+                let inputs = &tape.inputs;
+                let (grad_planes, grad_coords) =
+                    host::backward(&inputs.planes_last, &inputs.coords, &grad_out, inputs.dims);
+                (
+                    to_device::<Self>(grad_planes, inputs.plane_shape.clone(), &tape.device),
+                    to_device::<Self>(grad_coords, inputs.coord_shape.clone(), &tape.device),
+                )
+            }
+        }
+    };
+}
+
+host_triplane!(Flex);
+host_triplane!(NdArray);
+
+/// The GPU backends: the CubeCL kernels of `device.rs`, tape on the device.
 #[cfg(any(feature = "wgpu", feature = "cuda"))]
-impl TriplaneBackend for burn::backend::Cube {
-    fn triplane_sample(planes: FloatTensor<Self>, coords: FloatTensor<Self>) -> FloatTensor<Self> {
-        forward_on_host::<Self>(planes, coords).0
+mod on_device {
+    use super::*;
+    use crate::triplane::device::TriplaneDeviceOps;
+    use burn::backend::Cube;
+
+    impl TriplaneBackend for Cube {
+        fn triplane_sample(
+            planes: FloatTensor<Self>,
+            coords: FloatTensor<Self>,
+        ) -> FloatTensor<Self> {
+            Self::triplane_device_forward(planes, coords)
+        }
+    }
+
+    impl TriplaneTaped for Cube {
+        type Tape = (FloatTensor<Self>, FloatTensor<Self>);
+
+        fn forward_taped(
+            planes: FloatTensor<Self>,
+            coords: FloatTensor<Self>,
+        ) -> (FloatTensor<Self>, Self::Tape) {
+            let output = Self::triplane_device_forward(planes.clone(), coords.clone());
+            (output, (planes, coords))
+        }
+
+        fn backward_taped(
+            (planes, coords): Self::Tape,
+            grad: FloatTensor<Self>,
+        ) -> (FloatTensor<Self>, FloatTensor<Self>) {
+            Self::triplane_device_backward(planes, coords, grad)
+        }
     }
 }
 
-/// The backward step: the host reverse pass (`host::backward`).
+/// The backward step: the backend's [`TriplaneTaped::backward_taped`].
 #[derive(Debug)]
 struct TriplaneBackward;
 
-impl<B: Backend> Backward<B, 2> for TriplaneBackward {
-    type State = (Arc<HostInputs>, B::Device);
+impl<B: TriplaneTaped> Backward<B, 2> for TriplaneBackward {
+    type State = B::Tape;
 
     fn backward(
         self,
@@ -106,27 +194,19 @@ impl<B: Backend> Backward<B, 2> for TriplaneBackward {
         grads: &mut Gradients,
         _checkpointer: &mut Checkpointer,
     ) {
-        let grad_out = to_host::<B>(grads.consume::<B>(&ops.node));
-        let (inputs, device) = ops.state;
-        let (grad_planes, grad_coords) =
-            host::backward(&inputs.planes_last, &inputs.coords, &grad_out, inputs.dims);
+        let grad_out = grads.consume::<B>(&ops.node);
+        let (grad_planes, grad_coords) = B::backward_taped(ops.state, grad_out);
         let [planes, coords] = ops.parents;
         if let Some(node) = planes {
-            grads.register::<B>(
-                node.id,
-                to_device::<B>(grad_planes, inputs.plane_shape.clone(), &device),
-            );
+            grads.register::<B>(node.id, grad_planes);
         }
         if let Some(node) = coords {
-            grads.register::<B>(
-                node.id,
-                to_device::<B>(grad_coords, inputs.coord_shape.clone(), &device),
-            );
+            grads.register::<B>(node.id, grad_coords);
         }
     }
 }
 
-impl<B: Backend, C: CheckpointStrategy> TriplaneBackend for Autodiff<B, C> {
+impl<B: TriplaneTaped, C: CheckpointStrategy> TriplaneBackend for Autodiff<B, C> {
     fn triplane_sample(planes: FloatTensor<Self>, coords: FloatTensor<Self>) -> FloatTensor<Self> {
         let nodes = [planes.node(), coords.node()];
         let (planes, coords) = (planes.into_primitive(), coords.into_primitive());
@@ -136,11 +216,10 @@ impl<B: Backend, C: CheckpointStrategy> TriplaneBackend for Autodiff<B, C> {
             .stateful()
         {
             OpsKind::Tracked(prep) => {
-                let device = coords.device();
-                let (output, inputs) = forward_on_host::<B>(planes, coords);
-                prep.finish((Arc::new(inputs), device), output)
+                let (output, tape) = B::forward_taped(planes, coords);
+                prep.finish(tape, output)
             }
-            OpsKind::UnTracked(prep) => prep.finish(forward_on_host::<B>(planes, coords).0),
+            OpsKind::UnTracked(prep) => prep.finish(B::forward_taped(planes, coords).0),
         }
     }
 }

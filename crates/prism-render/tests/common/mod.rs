@@ -1,6 +1,8 @@
 //! Helpers shared by the splatting tests.
 #![allow(dead_code)]
 
+use std::sync::{Mutex, MutexGuard};
+
 use burn::tensor::{Device, Tensor, TensorData};
 use glam::{Mat4, Vec3};
 use prism_data::{BackendKind, Camera, Intrinsics};
@@ -114,4 +116,31 @@ pub fn orbit_camera(width: u32, height: u32, f: f32, yaw: f32, pitch: f32) -> Ca
 /// A tensor's values on the host.
 pub fn host<const D: usize>(t: Tensor<D>) -> Vec<f32> {
     t.into_data().convert::<f32>().try_to_vec::<f32>().unwrap()
+}
+
+/// One test at a time: the read counter is process-wide, and the host reference reads.
+pub fn serial() -> MutexGuard<'static, ()> {
+    static LOCK: Mutex<()> = Mutex::new(());
+    LOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+/// The wgpu device when an adapter answers, else `None` (a panic under `PRISM_REQUIRE_WGPU`).
+pub fn wgpu() -> Option<Device> {
+    let works = std::panic::catch_unwind(|| {
+        let device = BackendKind::Wgpu.device().ok()?;
+        let sum = Tensor::<1>::from_floats([1.0, 2.0], &device)
+            .sum()
+            .into_scalar::<f32>();
+        (sum == 3.0).then_some(device)
+    });
+    match works {
+        Ok(Some(device)) => Some(device),
+        _ if std::env::var_os("PRISM_REQUIRE_WGPU").is_some() => {
+            panic!("PRISM_REQUIRE_WGPU is set but no wgpu adapter works (install Mesa's lavapipe)")
+        }
+        _ => {
+            eprintln!("skipped: no wgpu adapter (install mesa-vulkan-drivers for lavapipe)");
+            None
+        }
+    }
 }
