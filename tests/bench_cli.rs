@@ -95,6 +95,11 @@ fn bench_times_teacher_student_linear_and_the_training_step() {
             .as_u64()
             .expect("peak memory measured");
         assert!(peak > 0, "{row}");
+        // The CPU backends run the geometry on the host: its reads are counted per row.
+        let reads = row["geometry_host_reads"]
+            .as_f64()
+            .expect("geometry reads counted");
+        assert!(reads >= 0.0, "{row}");
     }
     // The training run holds the model, its optimizer state and a batch's graph: more than
     // one inference forward pass at the same size.
