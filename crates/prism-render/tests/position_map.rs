@@ -6,7 +6,10 @@
 use burn::tensor::{Tensor, TensorData};
 use glam::{DVec3, Vec3};
 use prism_data::{BackendKind, BodyModel, BodyParams, Camera, Intrinsics};
-use prism_render::mesh::rasterize;
+use prism_render::mesh::{rasterize, rasterize_maps};
+
+#[cfg(feature = "wgpu")]
+mod common;
 
 /// The nearest hit of the ray `origin + t dir` (t > 0) with the mesh: `(face, [b0, b1, b2], t)`.
 fn ray_cast(
@@ -207,4 +210,103 @@ fn bad_inputs_are_errors() {
         Intrinsics::protocol_default(8, 9),
     );
     assert!(rasterize(&[&vertices, &vertices], &[[0, 1, 2]], &[camera, other]).is_err());
+}
+
+/// A posed body in two protocol cameras, its rest positions as per-vertex attributes.
+fn posed_scene() -> (Vec<Vec3>, Vec<Vec3>, Vec<[u32; 3]>, [Camera; 2]) {
+    let model = BodyModel::procedural(3);
+    let mut params = BodyParams::rest("procedural:3");
+    params.pose[16] = [0.0, 0.0, -1.1];
+    params.pose[4] = [0.6, 0.0, 0.0];
+    params.pose[0] = [0.0, 0.3, 0.0];
+    let posed = model.pose(&params);
+    let k = Intrinsics::protocol_default(40, 48);
+    let cameras = [
+        Camera::orbit(0.0, 0.0, 2.0, Vec3::new(0.0, 0.9, 0.0), k),
+        Camera::orbit(23.0, -17.0, 2.0, Vec3::new(0.0, 0.9, 0.0), k),
+    ];
+    (
+        posed.vertices.clone(),
+        posed.shaped.clone(),
+        model.faces().to_vec(),
+        cameras,
+    )
+}
+
+/// `[2, V, 3]` of the same mesh twice.
+fn twice(points: &[Vec3], device: &burn::tensor::Device) -> Tensor<3> {
+    let flat: Vec<f32> = points
+        .iter()
+        .chain(points)
+        .flat_map(|p| p.to_array())
+        .collect();
+    Tensor::from_data(TensorData::new(flat, [2, points.len(), 3]), device)
+}
+
+fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.into_data().convert::<f32>().try_to_vec::<f32>().unwrap()
+}
+
+/// The tensor rasterizer on a CPU backend is the host rasterizer: the same faces,
+/// barycentrics and position map.
+#[test]
+fn tensor_fragments_are_the_host_fragments_on_the_cpu() {
+    let (vertices, rest, faces, cameras) = posed_scene();
+    let device = BackendKind::Ndarray.device().unwrap();
+    let host = rasterize(&[&vertices, &vertices], &faces, &cameras).unwrap();
+    let maps = rasterize_maps(twice(&vertices, &device), &faces, &cameras).unwrap();
+    let ids: Vec<i32> = values(maps.faces.clone())
+        .iter()
+        .map(|&f| f as i32)
+        .collect();
+    assert_eq!(ids, host.faces);
+    let bary: Vec<f32> = host.barycentrics.iter().flatten().copied().collect();
+    assert_eq!(values(maps.barycentrics.clone()), bary);
+    assert_eq!(values(maps.mask()), values(host.mask(&device)));
+    let want = values(host.interpolate(twice(&rest, &device), &faces));
+    let got = values(maps.interpolate(twice(&rest, &device), &faces));
+    assert_eq!(got, want);
+}
+
+/// The device rasterizer (wgpu) finds what the host one finds: the same visible face on all
+/// but a few edge pixels (it works in f32 where the host uses f64), the same position map
+/// there, and no read from the device.
+#[cfg(feature = "wgpu")]
+#[test]
+fn the_device_rasterizer_matches_the_host() {
+    let _serial = common::serial();
+    let Some(gpu) = common::wgpu() else { return };
+    let (vertices, rest, faces, cameras) = posed_scene();
+    let cpu = BackendKind::Ndarray.device().unwrap();
+    let reads = prism_render::transfer::geometry_host_reads();
+    let maps = rasterize_maps(twice(&vertices, &gpu), &faces, &cameras).unwrap();
+    let map = maps.interpolate(twice(&rest, &gpu), &faces);
+    assert_eq!(
+        prism_render::transfer::geometry_host_reads(),
+        reads,
+        "the device rasterizer read from the device"
+    );
+    let want_maps = rasterize_maps(twice(&vertices, &cpu), &faces, &cameras).unwrap();
+    let want = values(want_maps.interpolate(twice(&rest, &cpu), &faces));
+    let (ids, want_ids) = (values(maps.faces.clone()), values(want_maps.faces.clone()));
+    let covered = want_ids.iter().filter(|&&f| f >= 0.0).count();
+    assert!(covered > 300, "{covered} pixels covered");
+    let differ = ids.iter().zip(&want_ids).filter(|(a, b)| a != b).count();
+    assert!(
+        differ * 50 <= covered,
+        "{differ} of {covered} pixels see another face"
+    );
+    let got = values(map);
+    let plane = ids.len();
+    let mut far = 0;
+    for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+        let pixel = (i / (3 * plane / 2)) * (plane / 2) + i % (plane / 2);
+        if ids[pixel] == want_ids[pixel] && (g - w).abs() > 1e-4 {
+            far += 1;
+        }
+    }
+    assert_eq!(
+        far, 0,
+        "position map values differ on pixels with the same face"
+    );
 }

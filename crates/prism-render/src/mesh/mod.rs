@@ -8,8 +8,14 @@
 //! attributes with the (constant) barycentrics by tensor gathers, so that gradients reach the
 //! attributes: `A(pixel) = sum_i b_i a_{f_i}` over the corners `f_i` of the visible face.
 
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+mod device;
+pub mod op;
 mod raster;
 
+use std::sync::Arc;
+
+use burn::backend::Dispatch;
 use burn::tensor::{Device, Int, Tensor, TensorData};
 use glam::Vec3;
 use prism_data::Camera;
@@ -17,6 +23,7 @@ use prism_data::Camera;
 pub use raster::{BAND_ROWS, NEAR_PLANE};
 
 use crate::RenderError;
+use op::{MeshBackend, MeshCameras, MeshFaces};
 
 /// What [`rasterize`] sees at every pixel centre of `B` cameras of `H x W` pixels. Buffers are
 /// batch-major, then row-major (`(b * H + y) * W + x`).
@@ -58,22 +65,7 @@ pub fn rasterize(
             cameras.len()
         )));
     }
-    let Some(first) = cameras.first() else {
-        return Err(RenderError::Input("no camera".into()));
-    };
-    let (w, h) = (first.intrinsics.width, first.intrinsics.height);
-    if w == 0 || h == 0 {
-        return Err(RenderError::Input(format!("empty image size {w}x{h}")));
-    }
-    if let Some(c) = cameras
-        .iter()
-        .find(|c| (c.intrinsics.width, c.intrinsics.height) != (w, h))
-    {
-        return Err(RenderError::Input(format!(
-            "cameras of one batch must share one image size, got {w}x{h} and {}x{}",
-            c.intrinsics.width, c.intrinsics.height
-        )));
-    }
+    let (w, h) = check_cameras(cameras)?;
     let v = meshes[0].len();
     if meshes.iter().any(|m| m.len() != v) {
         return Err(RenderError::Input(
@@ -174,4 +166,112 @@ pub fn meshes_from_flat(values: &[f32], batch: usize) -> Vec<Vec<Vec3>> {
                 .collect()
         })
         .collect()
+}
+
+/// The fragments of [`rasterize_maps`] as tensors on the vertices' device (no autodiff: the
+/// visibility is a discrete choice).
+#[derive(Clone, Debug)]
+pub struct FragmentMaps {
+    /// `[B, H, W]` index of the visible face, `-1` where none.
+    pub faces: Tensor<3>,
+    /// `[B, H, W, 3]` perspective-correct barycentrics of the visible face's corners.
+    pub barycentrics: Tensor<4>,
+    /// `[B, H, W]` camera-space depth, 0 where no face.
+    pub depth: Tensor<3>,
+}
+
+/// Rasterizes one mesh per camera given as a tensor `[B, V, 3]` of world-space vertices,
+/// on the vertices' device: the host rasterizer on the CPU backends, the CubeCL one on the GPU
+/// backends (which reads nothing back). The vertices' gradient, if any, is not followed.
+///
+/// # Errors
+/// On a camera count that is not the batch size, cameras of different image sizes, an empty
+/// image or a face indexing past the vertices.
+pub fn rasterize_maps(
+    vertices: Tensor<3>,
+    faces: &[[u32; 3]],
+    cameras: &[Camera],
+) -> Result<FragmentMaps, RenderError> {
+    let [b, v, _] = vertices.dims();
+    if b != cameras.len() {
+        return Err(RenderError::Input(format!(
+            "{b} meshes for {} cameras",
+            cameras.len()
+        )));
+    }
+    check_cameras(cameras)?;
+    if let Some(f) = faces.iter().find(|f| f.iter().any(|&i| i as usize >= v)) {
+        return Err(RenderError::Input(format!(
+            "face {f:?} indexes past the {v} vertices"
+        )));
+    }
+    let out = <Dispatch as MeshBackend>::mesh_rasterize(
+        vertices.inner().into_dispatch(),
+        MeshFaces(Arc::from(faces)),
+        MeshCameras(Arc::from(cameras)),
+    );
+    Ok(FragmentMaps {
+        faces: Tensor::from_dispatch(out.faces),
+        barycentrics: Tensor::from_dispatch(out.barycentrics),
+        depth: Tensor::from_dispatch(out.depth),
+    })
+}
+
+impl FragmentMaps {
+    /// `[B, 1, H, W]`: 1 where a face is visible, else 0.
+    pub fn mask(&self) -> Tensor<4> {
+        self.faces
+            .clone()
+            .greater_equal_elem(0.0)
+            .float()
+            .unsqueeze_dim(1)
+    }
+
+    /// Interpolates per-vertex `attributes` `[B, V, C]` over the visible faces: `[B, C, H, W]`,
+    /// `A(pixel) = sum_i b_i a_{f_i}`, zero where no face is visible; differentiable in the
+    /// attributes (the barycentrics are constants).
+    pub fn interpolate(&self, attributes: Tensor<3>, faces: &[[u32; 3]]) -> Tensor<4> {
+        let [b, v, c] = attributes.dims();
+        let [fb, h, w] = self.faces.dims();
+        assert_eq!(b, fb, "interpolate: {b} meshes for {fb} cameras");
+        let n = b * h * w;
+        let device = self.faces.device();
+        let table: Vec<i64> = faces.iter().flatten().map(|&i| i64::from(i)).collect();
+        let table = Tensor::<2, Int>::from_data(TensorData::new(table, [faces.len(), 3]), &device);
+        let ids = self.faces.clone().clamp_min(0.0).int().reshape([n]);
+        let base = Tensor::<1, Int>::arange(0..b as i64, &device)
+            .mul_scalar(v as i64)
+            .reshape([b, 1])
+            .repeat_dim(1, h * w)
+            .reshape([n, 1]);
+        let index = (table.select(0, ids) + base).reshape([3 * n]);
+        let visible = self.mask().reshape([b, h, w, 1]);
+        let weight = (self.barycentrics.clone() * visible).reshape([3 * n, 1]);
+        (attributes.reshape([b * v, c]).select(0, index) * weight)
+            .reshape([n, 3, c])
+            .sum_dim(1)
+            .reshape([b, h, w, c])
+            .permute([0, 3, 1, 2])
+    }
+}
+
+/// Checks that there is a camera and that all share one non-empty image size: `(width, height)`.
+fn check_cameras(cameras: &[Camera]) -> Result<(u32, u32), RenderError> {
+    let Some(first) = cameras.first() else {
+        return Err(RenderError::Input("no camera".into()));
+    };
+    let (w, h) = (first.intrinsics.width, first.intrinsics.height);
+    if w == 0 || h == 0 {
+        return Err(RenderError::Input(format!("empty image size {w}x{h}")));
+    }
+    if let Some(c) = cameras
+        .iter()
+        .find(|c| (c.intrinsics.width, c.intrinsics.height) != (w, h))
+    {
+        return Err(RenderError::Input(format!(
+            "cameras of one batch must share one image size, got {w}x{h} and {}x{}",
+            c.intrinsics.width, c.intrinsics.height
+        )));
+    }
+    Ok((w, h))
 }

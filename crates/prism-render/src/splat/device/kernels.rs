@@ -10,6 +10,8 @@
 
 use cubecl::prelude::*;
 
+use crate::compact::compact;
+
 use crate::splat::host::{
     DILATION, EXTENT_SIGMAS, MAX_ALPHA, MAX_POWER, MIN_ALPHA, MIN_TRANSMITTANCE, NEAR_PLANE,
     TILE_SIZE,
@@ -69,7 +71,6 @@ pub struct Projection {
     s_zz: f32,
     /// 2D covariance with the low-pass dilation, and its inverse (the conic).
     cov_a: f32,
-    cov_b: f32,
     cov_c: f32,
     con_a: f32,
     con_b: f32,
@@ -210,7 +211,6 @@ fn project_one(
         s_yz,
         s_zz,
         cov_a,
-        cov_b,
         cov_c,
         con_a: cov_c / det,
         con_b: -cov_b / det,
@@ -338,7 +338,7 @@ fn new_stage() -> Stage {
 
 /// Stages chunk `chunk` of camera `b`'s depth order: each unit reads one entry, keeps it when
 /// the Gaussian is drawn and its pixel rect meets this cube's tile, and the kept ones are
-/// compacted in order (an inclusive scan in shared memory). Returns how many were kept; every
+/// compacted in order ([`compact`]). Returns how many were kept; every
 /// unit of the cube must call it.
 #[cube]
 fn stage_chunk(
@@ -365,21 +365,9 @@ fn stage_chunk(
             && projected[o + 8] <= tile_y0 + last
             && projected[o + 10] >= tile_y0;
     }
-    stage.scan[t] = select(hit, 1u32, 0u32);
-    sync_cube();
-    let mut offset = 1usize;
-    while offset < BLOCK {
-        let mut add = 0u32;
-        if t >= offset {
-            add = stage.scan[t - offset];
-        }
-        sync_cube();
-        stage.scan[t] += add;
-        sync_cube();
-        offset *= 2;
-    }
+    let slot = compact(&mut stage.scan, hit, BLOCK);
     if hit {
-        let at = (stage.scan[t] - 1) as usize;
+        let at = (slot - 1) as usize;
         stage.ids[at] = g;
         stage.ranks[at] = (chunk * BLOCK + t) as u32;
         #[unroll]

@@ -1,0 +1,28 @@
+//! In-cube stream compaction, shared by the tiled kernels (Gaussian compositing, mesh
+//! rasterization): each unit of a cube of `len` units says whether it keeps its item, and gets
+//! the slot its item takes among the kept ones, in unit order.
+
+use cubecl::prelude::*;
+
+/// An inclusive prefix sum of the `hit` flags over the cube's units (Hillis-Steele in shared
+/// memory). Returns this unit's inclusive count: its slot is that minus one when `hit`. After
+/// the call (it ends on a barrier) `scan[len - 1]` holds the number kept. Every unit of the cube
+/// must call it.
+#[cube]
+pub fn compact(scan: &mut Shared<[u32]>, hit: bool, #[comptime] len: usize) -> u32 {
+    let t = UNIT_POS as usize;
+    scan[t] = select(hit, 1u32, 0u32);
+    sync_cube();
+    let mut offset = 1usize;
+    while offset < len {
+        let mut add = 0u32;
+        if t >= offset {
+            add = scan[t - offset];
+        }
+        sync_cube();
+        scan[t] += add;
+        sync_cube();
+        offset *= 2;
+    }
+    scan[t]
+}
