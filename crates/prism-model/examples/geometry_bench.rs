@@ -208,20 +208,32 @@ fn main() {
         let _ = b.into_data();
     });
     let pose = time(args.iters, || {
-        let _ = branch.world_vertices(&betas, &rotations, &expression, &camera, &x.views.source);
+        let world =
+            branch.world_vertices(&betas, &rotations, &expression, &camera, &x.views.source);
+        let _ = world.into_data();
     });
     let world = branch.world_vertices(&betas, &rotations, &expression, &camera, &x.views.source);
     let raster = time(args.iters, || {
-        let meshes: Vec<&[glam::Vec3]> = world.iter().map(Vec::as_slice).collect();
-        let _ = prism_render::mesh::rasterize(&meshes, branch.faces(), &x.views.target).unwrap();
+        let maps =
+            prism_render::mesh::rasterize_maps(world.clone(), branch.faces(), &x.views.target)
+                .unwrap();
+        let _ = maps.faces.into_data();
     });
     let map = time(args.iters, || {
-        let (_, m) =
-            branch.position_map(&world, betas.clone(), expression.clone(), &x.views.target);
+        let (_, m) = branch.position_map(
+            world.clone(),
+            betas.clone(),
+            expression.clone(),
+            &x.views.target,
+        );
         let _ = m.into_data();
     });
-    let (_, position) =
-        branch.position_map(&world, betas.clone(), expression.clone(), &x.views.target);
+    let (_, position) = branch.position_map(
+        world.clone(),
+        betas.clone(),
+        expression.clone(),
+        &x.views.target,
+    );
     let triplane = time(args.iters, || {
         let f = sample_triplane(branch.triplane.val(), position.clone()).unwrap();
         let _ = f.into_data();

@@ -9,10 +9,10 @@
 //!    weak-perspective camera `pi = (s, tx, ty)` (`s = softplus(.)`, see [`crate::placement`]).
 //!    `b_2` starts at the mean body: zero betas and expression, identity rotations, `s` of a body
 //!    `body_height` tall at `depth_prior` metres, the anchor at the image centre.
-//! 3. The Burn body model ([`BodyLayer`]) poses the mesh (no gradient: the rotations go through
-//!    axis-angle on the host), [`crate::placement::place`] puts it in the world through the
-//!    source camera, and the mesh rasterizer finds the visible face and barycentrics at every
-//!    target pixel ([`prism_render::mesh`]).
+//! 3. The Burn body model ([`BodyLayer`]) poses the mesh from the rotation matrices (no
+//!    gradient), the placement of [`crate::placement`] puts it in the world through the source
+//!    camera (as tensor ops), and the mesh rasterizer finds the visible face and barycentrics at
+//!    every target pixel ([`prism_render::mesh::rasterize_maps`]), all on the model's device.
 //! 4. Position map: the canonical rest-pose positions `v_shaped = T + S [beta; psi]` (shape and
 //!    expression blend shapes, no pose; differentiable in beta and psi), normalised to the cube
 //!    `[-1, 1]^3` by the template's bounding box, interpolated with the barycentrics.
@@ -34,14 +34,14 @@ use burn::tensor::{Device, Distribution, Tensor, TensorData};
 use glam::{Mat3, Vec3};
 use prism_data::body::joints::{NUM_BETAS, NUM_EXPRESSION, NUM_JOINTS};
 use prism_data::body::rodrigues;
-use prism_data::body::rotation::matrix_to_axis_angle;
 use prism_data::dataset::batch::BodyTensors;
 use prism_data::{BodyLayer, BodyModel, Camera};
 use prism_kernels::gelu;
-use prism_render::mesh::{Fragments, meshes_from_flat, rasterize};
+use prism_render::mesh::{FragmentMaps, rasterize_maps};
 use prism_render::triplane::sample_triplane;
 
-use crate::placement::{place, scale_for_height, weak_perspective};
+#[cfg(test)]
+use crate::placement::scale_for_height;
 use crate::point_branch::inverse_softplus;
 use crate::rotation::{IDENTITY_6D, rotation_6d_to_matrix};
 use crate::views::Views;
@@ -201,8 +201,8 @@ pub struct SmplxOutput {
     pub mask: Tensor<4>,
     /// `F_smpl`, `[B, C, H, W]`: the triplane features of the position map, zero off the body.
     pub features: Tensor<4>,
-    /// The posed body's vertices in the world, per pair (host values, for inspection).
-    pub world_vertices: Vec<Vec<Vec3>>,
+    /// The posed body's vertices in the world, `[B, V, 3]` (no gradient).
+    pub world_vertices: Tensor<3>,
 }
 
 impl SmplxOutput {
@@ -237,14 +237,23 @@ impl SmplxTargets {
     }
 }
 
-/// Reads a tensor to host memory, counted as a geometry read (the body is posed and the mesh
-/// rasterized on the host: see `prism_render::transfer`).
-fn host<const D: usize>(t: Tensor<D>) -> Vec<f32> {
-    prism_render::transfer::count_geometry_read();
-    t.into_data()
-        .convert::<f32>()
-        .try_to_vec::<f32>()
-        .expect("f32 tensor data")
+/// The source cameras' camera-to-world rotations `[B, 3, 3]` (row-major) and centres
+/// `[B, 1, 3]`, uploaded to `device`.
+fn camera_frames(cameras: &[Camera], device: &Device) -> (Tensor<3>, Tensor<3>) {
+    let b = cameras.len();
+    let mut rotation = Vec::with_capacity(9 * b);
+    let mut centre = Vec::with_capacity(3 * b);
+    for camera in cameras {
+        let r = Mat3::from_mat4(camera.c2w);
+        for row in 0..3 {
+            rotation.extend([r.x_axis[row], r.y_axis[row], r.z_axis[row]]);
+        }
+        centre.extend(camera.center().to_array());
+    }
+    (
+        Tensor::from_data(TensorData::new(rotation, [b, 3, 3]), device),
+        Tensor::from_data(TensorData::new(centre, [b, 1, 3]), device),
+    )
 }
 
 impl SmplxBranch {
@@ -297,8 +306,8 @@ impl SmplxBranch {
         flat.reshape([b, self.body.num_vertices(), 3])
     }
 
-    /// Poses the body (no gradient) and places it in the world through the source cameras:
-    /// one vertex list per pair.
+    /// Poses the body (no gradient) and places it in the world through the source cameras
+    /// ([`crate::placement`], as tensor ops on the model's device): `[B, V, 3]`.
     pub fn world_vertices(
         &self,
         betas: &Tensor<2>,
@@ -306,53 +315,54 @@ impl SmplxBranch {
         expression: &Tensor<2>,
         camera: &Tensor<2>,
         source_cameras: &[Camera],
-    ) -> Vec<Vec<Vec3>> {
+    ) -> Tensor<3> {
         let [b, ..] = rotations.dims();
-        let device = rotations.device();
-        let matrices = host(rotations.clone().detach());
-        let axis_angle: Vec<f32> = matrices
-            .chunks_exact(9)
-            .flat_map(|m| {
-                // Row-major [row][col] to glam's columns.
-                let r = Mat3::from_cols(
-                    Vec3::new(m[0], m[3], m[6]),
-                    Vec3::new(m[1], m[4], m[7]),
-                    Vec3::new(m[2], m[5], m[8]),
-                );
-                matrix_to_axis_angle(r).to_array()
-            })
-            .collect();
-        let pose = Tensor::<3>::from_data(TensorData::new(axis_angle, [b, NUM_JOINTS, 3]), &device);
-        let posed = self
-            .body
-            .forward(betas.clone().detach(), pose, expression.clone().detach());
-        let vertices = meshes_from_flat(&host(posed.vertices), b);
-        let joints = host(posed.joints);
-        let pi = host(camera.clone().detach());
-        vertices
-            .iter()
-            .enumerate()
-            .map(|(i, v)| {
-                let root = Vec3::from_slice(&joints[i * NUM_JOINTS * 3..i * NUM_JOINTS * 3 + 3]);
-                let scale = scale_for_height(v, self.body_height);
-                let pi = [pi[3 * i], pi[3 * i + 1], pi[3 * i + 2]];
-                place(v, root, pi, scale, &source_cameras[i])
-            })
-            .collect()
+        let posed = self.body.forward_rotations(
+            betas.clone().detach(),
+            rotations.clone().detach(),
+            expression.clone().detach(),
+        );
+        let vertices = posed.vertices.detach();
+        let root = posed.joints.detach().narrow(1, 0, 1); // [B, 1, 3]
+        // scale_for_height: the scale that makes the posed body `body_height` tall (1 where the
+        // extent is not a positive number).
+        let heights = vertices.clone().narrow(2, 1, 1);
+        let extent = heights.clone().max_dim(1) - heights.min_dim(1); // [B, 1, 1]
+        let usable = extent
+            .clone()
+            .greater_elem(0.0)
+            .bool_and(extent.clone().is_finite());
+        let scale = extent.recip().mul_scalar(self.body_height).mask_where(
+            usable.bool_not(),
+            Tensor::ones([b, 1, 1], &vertices.device()),
+        );
+        // place: Z = scale / s, anchor = C + R (Z tx, Z ty, Z).
+        let pi = camera.clone().detach().reshape([b, 1, 3]);
+        let z = scale.clone() / pi.clone().narrow(2, 0, 1);
+        let local = Tensor::cat(
+            vec![
+                z.clone() * pi.clone().narrow(2, 1, 1),
+                z.clone() * pi.narrow(2, 2, 1),
+                z,
+            ],
+            2,
+        );
+        let (rotation, centre) = camera_frames(source_cameras, &vertices.device());
+        let anchor = local.matmul(rotation.swap_dims(1, 2)) + centre;
+        (vertices - root) * scale + anchor
     }
 
-    /// The position map of world-placed bodies in the target cameras: `(fragments, canonical
-    /// positions [B, 3, H, W] in the triplane's cube)`; differentiable in `betas` and
-    /// `expression`.
+    /// The position map of world-placed bodies `[B, V, 3]` in the target cameras:
+    /// `(fragments, canonical positions [B, 3, H, W] in the triplane's cube)`; differentiable in
+    /// `betas` and `expression`.
     pub fn position_map(
         &self,
-        world: &[Vec<Vec3>],
+        world: Tensor<3>,
         betas: Tensor<2>,
         expression: Tensor<2>,
         target_cameras: &[Camera],
-    ) -> (Fragments, Tensor<4>) {
-        let meshes: Vec<&[Vec3]> = world.iter().map(Vec::as_slice).collect();
-        let fragments = rasterize(&meshes, &self.faces, target_cameras)
+    ) -> (FragmentMaps, Tensor<4>) {
+        let fragments = rasterize_maps(world, &self.faces, target_cameras)
             .expect("the body and the target cameras fit together");
         let device = betas.device();
         let constant =
@@ -380,8 +390,8 @@ impl SmplxBranch {
         let world = self.world_vertices(&betas, &rotations, &expression, &camera, &sources);
         let targets = views.target_at(width, height);
         let (fragments, position_map) =
-            self.position_map(&world, betas.clone(), expression.clone(), &targets);
-        let mask = fragments.mask(&betas.device());
+            self.position_map(world.clone(), betas.clone(), expression.clone(), &targets);
+        let mask = fragments.mask();
         let features = sample_triplane(self.triplane.val(), position_map.clone())
             .expect("the triplane and the position map fit together")
             * mask.clone();
@@ -409,28 +419,38 @@ impl SmplxBranch {
         let device = body.betas.device();
         let rotations = rodrigues(body.pose.clone().reshape([b * NUM_JOINTS, 3]))
             .reshape([b, NUM_JOINTS, 3, 3]);
-        let joints = host(
-            self.body
-                .forward(
-                    body.betas.clone(),
-                    body.pose.clone(),
-                    body.expression.clone(),
-                )
-                .joints,
+        // weak_perspective as tensor ops: the anchor sigma J_0 + transl in the source camera.
+        let root = self
+            .body
+            .forward(
+                body.betas.clone(),
+                body.pose.clone(),
+                body.expression.clone(),
+            )
+            .joints
+            .detach()
+            .narrow(1, 0, 1); // [B, 1, 3]
+        let scale = body.scale.clone().reshape([b, 1, 1]);
+        let anchor = root * scale.clone() + body.transl.clone().reshape([b, 1, 3]);
+        let (rotation, centre) = camera_frames(source_cameras, &device);
+        // World to camera: R^T (p - C).
+        let p = (anchor - centre).matmul(rotation);
+        let depth = p.clone().narrow(2, 2, 1);
+        let camera = Tensor::cat(
+            vec![
+                scale / depth.clone(),
+                p.clone().narrow(2, 0, 1) / depth.clone(),
+                p.narrow(2, 1, 1) / depth,
+            ],
+            2,
+        )
+        .reshape([b, 3]);
+        // Rows without a fit are zeros (and their division by a zero depth must not leak).
+        let present = body.present.clone().reshape([b, 1]);
+        let camera = camera.mask_where(
+            present.clone().equal_elem(0.0).expand([b, 3]),
+            Tensor::zeros([b, 3], &device),
         );
-        let present = host(body.present.clone());
-        let scale = host(body.scale.clone());
-        let transl = host(body.transl.clone());
-        let camera: Vec<f32> = (0..b)
-            .flat_map(|i| {
-                if present[i] == 0.0 {
-                    return [0.0; 3];
-                }
-                let root = Vec3::from_slice(&joints[i * NUM_JOINTS * 3..i * NUM_JOINTS * 3 + 3]);
-                let t = Vec3::from_slice(&transl[3 * i..3 * i + 3]);
-                weak_perspective(scale[i], t, root, &source_cameras[i])
-            })
-            .collect();
         // Rows without a fit: zero rotations too (not Rodrigues' identity), so that every
         // field of a missing row is zero.
         let rows = body.present.clone().reshape([b, 1, 1, 1]);
@@ -438,7 +458,7 @@ impl SmplxBranch {
             betas: body.betas.clone(),
             rotations: rotations * rows,
             expression: body.expression.clone(),
-            camera: Tensor::from_data(TensorData::new(camera, [b, 3]), &device),
+            camera,
             present: body.present.clone(),
         }
     }
@@ -510,10 +530,11 @@ mod tests {
             &targets.camera,
             &[camera],
         );
-        let err = world[0]
-            .iter()
+        let world = values(&world);
+        let err = world
+            .chunks_exact(3)
             .zip(&posed_world.vertices)
-            .map(|(a, b)| (*a - *b).length())
+            .map(|(a, b)| (Vec3::from_slice(a) - *b).length())
             .fold(0.0f32, f32::max);
         assert!(err < 1e-3, "placed body differs from the fit by {err} m");
 

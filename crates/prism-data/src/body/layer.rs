@@ -177,7 +177,6 @@ impl BodyLayer {
     /// model's frame. Differentiable in all three inputs.
     pub fn forward(&self, betas: Tensor<2>, pose: Tensor<3>, expression: Tensor<2>) -> BodyOutput {
         let [b, _] = betas.dims();
-        let v = self.num_vertices;
         assert_eq!(betas.dims()[1], NUM_BETAS, "betas must be [B, 10]");
         assert_eq!(
             expression.dims(),
@@ -185,6 +184,26 @@ impl BodyLayer {
             "expression must be [B, 10]"
         );
         assert_eq!(pose.dims(), [b, NUM_JOINTS, 3], "pose must be [B, 55, 3]");
+        let rotations: Tensor<4> =
+            rodrigues(pose.reshape([b * NUM_JOINTS, 3])).reshape([b, NUM_JOINTS, 3, 3]);
+        self.forward_rotations(betas, rotations, expression)
+    }
+
+    /// [`BodyLayer::forward`] with the joints' rotations given as matrices `[B, 55, 3, 3]`
+    /// (row-major) instead of axis-angle.
+    pub fn forward_rotations(
+        &self,
+        betas: Tensor<2>,
+        rotations: Tensor<4>,
+        expression: Tensor<2>,
+    ) -> BodyOutput {
+        let [b, _] = betas.dims();
+        let v = self.num_vertices;
+        assert_eq!(
+            rotations.dims(),
+            [b, NUM_JOINTS, 3, 3],
+            "rotations must be [B, 55, 3, 3]"
+        );
 
         // Shape and expression blend shapes, and the rest joints (J_regressor is linear, so the
         // joints of the shaped body are the template's joints plus the regressed directions).
@@ -194,9 +213,7 @@ impl BodyLayer {
             + self.j_template.clone())
         .reshape([b, NUM_JOINTS, 3]);
 
-        // Rotations and pose correctives.
-        let rotations: Tensor<4> =
-            rodrigues(pose.reshape([b * NUM_JOINTS, 3])).reshape([b, NUM_JOINTS, 3, 3]);
+        // Pose correctives.
         let feature = rotations
             .clone()
             .slice([0..b, 1..NUM_JOINTS])
