@@ -1,6 +1,8 @@
 //! The wgpu backend agrees with flex: a forward pass of the tiny model (geometry parts
 //! included) and one training step (teacher objective, backward, AdamW update) from the same
-//! weights on the same batch.
+//! weights on the same batch; and a training step of the tiny and of the small config on wgpu
+//! reads nothing back to the host in its geometry operations (the device kernels), where the
+//! same step on flex does (the host path).
 //!
 //! Runs with `--features wgpu` on a machine with a Vulkan / Metal / DX12 adapter; Mesa's
 //! software Vulkan (lavapipe, Debian package `mesa-vulkan-drivers`) is enough, and `.ci/run`
@@ -19,6 +21,7 @@ use prism_data::dataset::{
     DatasetReader, PrismBatch, PrismBatcher, SampleDataset, SplitKind, TargetSelection,
 };
 use prism_model::{Prism, protocol_views};
+use prism_render::transfer::geometry_host_reads;
 use prism_train::{StepLoss, TeacherLoss, TrainingConfig, ensure_synthetic_dataset};
 
 /// Held by both tests: the backends seed one process-wide random generator, so a test that
@@ -56,9 +59,15 @@ fn wgpu_device() -> Option<Device> {
 }
 
 fn tiny() -> TrainingConfig {
-    let mut config =
-        TrainingConfig::load(Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/tiny.toml"))
-            .expect("tiny config");
+    config("tiny")
+}
+
+/// A shipped config, LPIPS off.
+fn config(name: &str) -> TrainingConfig {
+    let mut config = TrainingConfig::load(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("configs/{name}.toml")),
+    )
+    .expect("shipped config");
     // LPIPS weighs in through the same tensor ops; leaving it out keeps the test fast.
     config.losses.lpips = 0.0;
     config
@@ -195,4 +204,54 @@ fn one_training_step_on_wgpu_matches_flex() {
         assert!(err < 2e-2, "update differs by {err} (relative)");
     }
     assert!(moved > 10, "only {moved} parameters moved");
+}
+
+/// The geometry reads of one teacher step (forward, objective, backward, AdamW) of `config`
+/// on `device`, on a batch of its synthetic dataset at `size` pixels.
+fn geometry_reads_of_a_step(config: &TrainingConfig, device: &Device, size: u32) -> u64 {
+    let data = ensure_synthetic_dataset(&config.data, false).expect("synthetic dataset");
+    let reader = DatasetReader::open(&data).expect("dataset");
+    let background = reader.meta().background;
+    let dataset = SampleDataset::new(
+        reader,
+        SplitKind::Train,
+        TargetSelection::Random {
+            count: 1,
+            repeats: 1,
+        },
+        Some((size, size)),
+        0,
+    )
+    .expect("samples");
+    let samples = vec![dataset.load(0).unwrap()];
+    let ad = device.clone().autodiff();
+    device.seed(3);
+    let model = config.model.init(device).to_device(&ad).train();
+    let batch: PrismBatch = PrismBatcher.batch_samples(&samples, &ad);
+    let loss = TeacherLoss::new(config, background, None, &ad).expect("objective");
+    let before = geometry_host_reads();
+    let terms = loss.loss(&model, &batch, 0);
+    let grads = GradientsParams::from_grads(terms.total.backward(), &model);
+    let model = AdamWConfig::new().init().step(1e-3, model, grads);
+    let _ = device.sync();
+    let reads = geometry_host_reads() - before;
+    drop(model);
+    reads
+}
+
+/// No geometry operation of a tiny or small training step reads from the GPU; on flex the
+/// same step goes through the host (so the counter is live).
+#[test]
+fn a_training_step_on_wgpu_makes_no_geometry_read() {
+    let _serial = serial();
+    let Some(wgpu) = wgpu_device() else { return };
+    let tiny = tiny();
+    assert!(tiny.model.smplx_branch && tiny.model.point_branch);
+    assert!(geometry_reads_of_a_step(&tiny, &Device::flex(), 32) > 0);
+    assert_eq!(geometry_reads_of_a_step(&tiny, &wgpu, 32), 0, "tiny");
+    // The small model on the tiny dataset's people (the reads do not depend on the data).
+    let mut small = config("small");
+    small.data = tiny.data.clone();
+    assert!(small.model.smplx_branch && small.model.point_branch);
+    assert_eq!(geometry_reads_of_a_step(&small, &wgpu, 32), 0, "small");
 }
