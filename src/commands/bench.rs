@@ -9,10 +9,10 @@ use anyhow::Context;
 use clap::{Args, Subcommand};
 use prism_data::BackendKind;
 use prism_data::dataset::DatasetReader;
+use prism_data::reads::{geometry_host_reads, host_reads};
 use prism_model::{
     AttentionKind, BenchOptions, BenchRow, MemoryProbe, Precision, bench_forward, load_config,
 };
-use prism_render::transfer::geometry_host_reads;
 use prism_train::{
     RunOptions, TeacherTask, TrainingConfig, Validator, ensure_synthetic_dataset, load_model,
     read_metrics, train,
@@ -70,7 +70,7 @@ struct TableArgs {
     #[arg(long, value_name = "DIR")]
     data: Option<PathBuf>,
     /// Also write `{"rows": [{"model", "res", "tokens", "ms", "fps", "peak_mem_bytes",
-    /// "geometry_host_reads"}]}` to
+    /// "host_reads", "geometry_host_reads"}]}` to
     /// this file (the training step is the row `train_step`, `fps` its steps per second).
     /// `peak_mem_bytes` is the peak of the timed runs: the memory pools' bytes on GPU
     /// backends, the heap's growth above its size before the runs on the CPU ones (for the
@@ -114,7 +114,7 @@ struct ModelBenchArgs {
     #[arg(long, default_value_t = 10)]
     iters: usize,
     /// Also write `{"rows": [{"model", "res", "tokens", "ms", "fps", "peak_mem_bytes",
-    /// "geometry_host_reads"}]}` to
+    /// "host_reads", "geometry_host_reads"}]}` to
     /// this file (`peak_mem_bytes`: the timed runs' peak, the memory pools' bytes on GPU
     /// backends, the heap's growth above its size before the runs on the CPU ones).
     #[arg(long, value_name = "FILE")]
@@ -175,8 +175,8 @@ impl ModelBenchArgs {
             runs.push((name, config, resolutions));
         }
         println!(
-            "{:<16} {:>6} {:>7} {:>10} {:>8} {:>12}",
-            "model", "res", "tokens", "ms/frame", "fps", "peak_mem"
+            "{:<16} {:>6} {:>7} {:>10} {:>8} {:>12} {:>7} {:>9}",
+            "model", "res", "tokens", "ms/frame", "fps", "peak_mem", "reads", "geometry"
         );
         let mut rows = Vec::new();
         for (name, config, resolutions) in runs {
@@ -211,10 +211,11 @@ fn write_json(path: &Path, rows: &[BenchRow]) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Prints one row of the table `model res tokens ms/frame fps peak_mem`.
+/// Prints one row of the table `model res tokens ms/frame fps peak_mem reads geometry` (the
+/// last two: host reads per frame or step, all and the geometry operations').
 fn print_row(row: &BenchRow) {
     println!(
-        "{:<16} {:>6} {:>7} {:>10.2} {:>8.2} {:>12}",
+        "{:<16} {:>6} {:>7} {:>10.2} {:>8.2} {:>12} {:>7.1} {:>9.1}",
         row.model,
         row.res,
         row.tokens,
@@ -223,7 +224,9 @@ fn print_row(row: &BenchRow) {
         row.peak_mem_bytes.map_or("n/a".to_string(), |b| format!(
             "{:.1} MiB",
             b as f64 / 1048576.0
-        ))
+        )),
+        row.host_reads,
+        row.geometry_host_reads
     );
 }
 
@@ -282,8 +285,8 @@ impl TableArgs {
             self.precision
         );
         println!(
-            "{:<16} {:>6} {:>7} {:>10} {:>8} {:>12}",
-            "model", "res", "tokens", "ms/frame", "fps", "peak_mem"
+            "{:<16} {:>6} {:>7} {:>10} {:>8} {:>12} {:>7} {:>9}",
+            "model", "res", "tokens", "ms/frame", "fps", "peak_mem", "reads", "geometry"
         );
         let mut rows = Vec::new();
         for name in &self.models {
@@ -329,9 +332,13 @@ impl TableArgs {
         let mut options = RunOptions::new(&out, self.backend);
         options.data = Some(data);
         let probe = MemoryProbe::start(&self.backend.device()?);
-        let reads = geometry_host_reads();
+        let reads = (host_reads(), geometry_host_reads());
         let result = train(&config, &TeacherTask::default(), &options);
-        let reads = (geometry_host_reads() - reads) as f64 / steps as f64;
+        let per_step = |now: u64, then: u64| (now - then) as f64 / steps as f64;
+        let (all_reads, geometry_reads) = (
+            per_step(host_reads(), reads.0),
+            per_step(geometry_host_reads(), reads.1),
+        );
         let peak = probe.peak_bytes();
         let metrics = result.and_then(|_| read_metrics(&out.join(prism_train::METRICS_FILE)));
         let _ = std::fs::remove_dir_all(&out);
@@ -352,7 +359,8 @@ impl TableArgs {
             ms,
             fps: 1e3 / ms,
             peak_mem_bytes: peak,
-            geometry_host_reads: reads,
+            host_reads: all_reads,
+            geometry_host_reads: geometry_reads,
         })
     }
 }

@@ -17,6 +17,7 @@ pub mod people;
 pub mod protocol;
 pub mod raster;
 pub mod rays;
+pub mod reads;
 pub mod scan;
 pub mod scan_dataset;
 pub mod synth;

@@ -181,7 +181,10 @@ impl LossTerms {
             .iter()
             .map(|(n, t)| (*n, t))
             .chain([("total", &self.total)])
-            .map(|(n, t)| (n, t.clone().into_scalar::<f64>()))
+            .map(|(n, t)| {
+                prism_data::reads::count_host_read();
+                (n, t.clone().into_scalar::<f64>())
+            })
             .collect()
     }
 }

@@ -9,8 +9,8 @@ use std::time::Instant;
 use burn::tensor::{Device, Distribution, Tensor};
 use glam::Vec3;
 use prism_data::rays::plucker_rays;
+use prism_data::reads::{geometry_host_reads, host_reads};
 use prism_data::{Camera, Intrinsics};
-use prism_render::transfer::geometry_host_reads;
 use serde::Serialize;
 
 use crate::memory::MemoryProbe;
@@ -50,8 +50,12 @@ pub struct BenchRow {
     /// pool's reservation on wgpu / cuda, the growth of the process's resident set on the CPU
     /// backends (Linux); `None` where neither is available.
     pub peak_mem_bytes: Option<u64>,
-    /// Tensors the geometry operations read back to the host per frame (per step for the
-    /// training step): 0 where they run on the device (`prism_render::transfer`).
+    /// Tensors read back to the host per frame (per step for the training step) at prism's
+    /// transfer points ([`prism_data::reads`]): the frame itself, loss values for the log, the
+    /// gradient norm, and the geometry operations' reads.
+    pub host_reads: f64,
+    /// The part of `host_reads` made by the geometry operations: 0 where they run on the
+    /// device.
     pub geometry_host_reads: f64,
 }
 
@@ -88,6 +92,7 @@ pub fn bench_forward(
             &[],
         );
         // Waits for the result: reading it back forces lazy backends to execute.
+        prism_data::reads::count_host_read();
         let _ = out.image.into_data();
         let _ = device.sync();
     };
@@ -95,7 +100,7 @@ pub fn bench_forward(
         run();
     }
     let mut probe = MemoryProbe::start(device);
-    let reads = geometry_host_reads();
+    let reads = (host_reads(), geometry_host_reads());
     let mut times: Vec<f64> = (0..options.iters.max(1))
         .map(|_| {
             let start = Instant::now();
@@ -105,7 +110,11 @@ pub fn bench_forward(
             ms
         })
         .collect();
-    let reads = (geometry_host_reads() - reads) as f64 / times.len() as f64;
+    let per_frame = |now: u64, then: u64| (now - then) as f64 / times.len() as f64;
+    let (all_reads, geometry_reads) = (
+        per_frame(host_reads(), reads.0),
+        per_frame(geometry_host_reads(), reads.1),
+    );
     times.sort_by(|a, b| a.total_cmp(b));
     let ms = median(&times);
     let patch = model.tokenizer.patch_size();
@@ -116,7 +125,8 @@ pub fn bench_forward(
         ms,
         fps: 1e3 / ms,
         peak_mem_bytes: probe.peak_bytes(),
-        geometry_host_reads: reads,
+        host_reads: all_reads,
+        geometry_host_reads: geometry_reads,
     }
 }
 

@@ -1,31 +1,16 @@
 //! Moving backend primitives to host memory and back, for the geometry operations that compute
 //! on the host (on the CPU backends), and the count of those reads.
 //!
-//! Every read a geometry operation makes goes through [`to_host`], which counts it: on a GPU a
-//! read is a synchronisation that empties the device's queue, so `prism bench` reports the count
-//! per training step and per frame ([`geometry_host_reads`]), and a test asserts that a step on
-//! a GPU backend makes none.
-
-use std::sync::atomic::{AtomicU64, Ordering};
+//! Every read a geometry operation makes goes through [`to_host`], which counts it
+//! ([`prism_data::reads`]): on a GPU a read is a synchronisation that empties the device's
+//! queue, so `prism bench` reports the count per training step and per frame, and a test
+//! asserts that a step on a GPU backend makes none.
 
 use burn::backend::Backend;
 use burn::backend::tensor::FloatTensor;
 use burn::tensor::{TensorData, read_sync};
 
-/// Device-to-host reads made by the geometry operations since the process started.
-static GEOMETRY_READS: AtomicU64 = AtomicU64::new(0);
-
-/// How many tensors the geometry operations (rasterizer, triplane sampling, position map) have
-/// read back to the host since the process started. Take the difference around a step.
-pub fn geometry_host_reads() -> u64 {
-    GEOMETRY_READS.load(Ordering::Relaxed)
-}
-
-/// Counts one read made by a geometry operation outside [`to_host`] (the SMPL-X branch reads
-/// its posed vertices for the mesh rasterizer this way).
-pub fn count_geometry_read() {
-    GEOMETRY_READS.fetch_add(1, Ordering::Relaxed);
-}
+pub use prism_data::reads::{count_geometry_read, geometry_host_reads};
 
 /// Reads a primitive to host memory as `f32`, counting the read.
 ///

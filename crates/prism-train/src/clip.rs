@@ -32,7 +32,10 @@ pub fn global_norm<M: Module>(module: &M, grads: &GradientsParams) -> f64 {
     }
     let mut visitor = SumSquares { grads, total: None };
     module.visit(&mut visitor);
-    visitor.total.map_or(0.0, |t| t.into_scalar::<f64>().sqrt())
+    visitor.total.map_or(0.0, |t| {
+        prism_data::reads::count_host_read();
+        t.into_scalar::<f64>().sqrt()
+    })
 }
 
 /// Multiplies every gradient of `module`'s parameters in `grads` by `factor`.
