@@ -1,6 +1,6 @@
-//! In-cube stream compaction, shared by the tiled kernels (Gaussian compositing, mesh
-//! rasterization): each unit of a cube of `len` units says whether it keeps its item, and gets
-//! the slot its item takes among the kept ones, in unit order.
+//! In-cube reductions shared by the tiled kernels (Gaussian compositing, mesh rasterization):
+//! stream compaction (each unit of a cube of `len` units says whether it keeps its item, and
+//! gets the slot its item takes among the kept ones, in unit order) and the cube's maximum.
 
 use cubecl::prelude::*;
 
@@ -25,4 +25,27 @@ pub fn compact(scan: &mut Shared<[u32]>, hit: bool, #[comptime] len: usize) -> u
         offset *= 2;
     }
     scan[t]
+}
+
+/// The maximum of `value` over the cube's `len` units (an inclusive max-scan in shared memory,
+/// as [`compact`]), returned to every unit. Every unit of the cube must call it.
+#[cube]
+pub fn cube_max(buf: &mut Shared<[u32]>, value: u32, #[comptime] len: usize) -> u32 {
+    let t = UNIT_POS as usize;
+    buf[t] = value;
+    sync_cube();
+    let mut offset = 1usize;
+    while offset < len {
+        let mut other = 0u32;
+        if t >= offset {
+            other = buf[t - offset];
+        }
+        sync_cube();
+        buf[t] = u32::max(buf[t], other);
+        sync_cube();
+        offset *= 2;
+    }
+    let out = buf[len - 1] + 0u32;
+    sync_cube();
+    out
 }

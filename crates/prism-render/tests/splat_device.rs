@@ -223,6 +223,45 @@ fn a_stress_scene_renders_and_differentiates_like_the_host() {
     compare(&s, &[camera], 6);
 }
 
+/// An opaque wall in front of a thousand Gaussians: every pixel saturates within the first
+/// chunk, so the compositing stops early and the reverse pass skips the chunks behind.
+#[test]
+fn a_wall_that_hides_the_rest_renders_and_differentiates_like_the_host() {
+    let camera = orbit_camera(40, 36, 50.0, 0.0, 0.0);
+    let to_world = |x: f32, y: f32, depth: f32| {
+        let dir = camera.c2w.transform_vector3(glam::Vec3::new(x, y, 1.0));
+        (camera.c2w.w_axis.truncate() + dir * depth).to_array()
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let mut s = Scene::new(1, 3);
+    for k in 0..30 {
+        let (x, y) = ((k % 6) as f32 * 0.16 - 0.4, (k / 6) as f32 * 0.2 - 0.4);
+        let c = [rng.random_range(0.0..1.0), 0.5, 0.2];
+        s.push(
+            to_world(x, y, 1.2 + 0.001 * k as f32),
+            [-1.6, -1.6, -2.5],
+            [1.0, 0.0, 0.0, 0.0],
+            0.99,
+            &c,
+        );
+    }
+    for _ in 0..1000 {
+        let (x, y) = (
+            rng.random_range(-0.4f32..0.4),
+            rng.random_range(-0.4f32..0.4),
+        );
+        let c = [rng.random_range(0.0..1.0), rng.random_range(0.0..1.0), 0.0];
+        s.push(
+            to_world(x, y, rng.random_range(2.0..3.0)),
+            [-3.0; 3],
+            [1.0, 0.0, 0.0, 0.0],
+            0.8,
+            &c,
+        );
+    }
+    compare(&s, &[camera], 4);
+}
+
 /// A batch of two cameras, each with its own Gaussians, of a count that is not a power of two.
 #[test]
 fn a_batch_renders_and_differentiates_like_the_host() {

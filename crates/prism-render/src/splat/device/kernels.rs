@@ -10,7 +10,7 @@
 
 use cubecl::prelude::*;
 
-use crate::compact::compact;
+use crate::compact::{compact, cube_max};
 
 use crate::splat::host::{
     DILATION, EXTENT_SIGMAS, MAX_ALPHA, MAX_POWER, MIN_ALPHA, MIN_TRANSMITTANCE, NEAR_PLANE,
@@ -444,35 +444,40 @@ pub fn rasterize_kernel(
     let mut last = 0u32;
     let mut done = !inside;
     let chunks = n_pad as usize / BLOCK;
+    // Whether every pixel of the tile is done (the same for every unit: the rest is skipped).
+    let mut saturated = false;
     for chunk in 0..chunks {
-        let hits = stage_chunk(projected, order, &mut stage, chunk, b, count, n_pad);
-        for s in 0..hits {
-            if !done {
-                let g = stage.ids[s];
-                let o = s * STAGED;
-                let dx = px + 0.5 - stage.staged[o];
-                let dy = py + 0.5 - stage.staged[o + 1];
-                let a = alpha_at(&stage.staged, s, px, py, dx, dy);
-                if a.alpha > 0.0 {
-                    let next = t * (1.0 - a.alpha);
-                    if next < MIN_TRANSMITTANCE {
-                        done = true;
-                    } else {
-                        let w = a.alpha * t;
-                        let f = (b * count as usize + g as usize) * ch;
-                        for c in 0..ch {
-                            let out = (b * (ch + 2) + c) * hw + pix;
-                            image[out] += w * features[f + c];
+        if !saturated {
+            let hits = stage_chunk(projected, order, &mut stage, chunk, b, count, n_pad);
+            for s in 0..hits {
+                if !done {
+                    let g = stage.ids[s];
+                    let o = s * STAGED;
+                    let dx = px + 0.5 - stage.staged[o];
+                    let dy = py + 0.5 - stage.staged[o + 1];
+                    let a = alpha_at(&stage.staged, s, px, py, dx, dy);
+                    if a.alpha > 0.0 {
+                        let next = t * (1.0 - a.alpha);
+                        if next < MIN_TRANSMITTANCE {
+                            done = true;
+                        } else {
+                            let w = a.alpha * t;
+                            let f = (b * count as usize + g as usize) * ch;
+                            let out = b * (ch + 2) * hw + pix;
+                            for c in 0..ch {
+                                image[out + c * hw] += w * features[f + c];
+                            }
+                            image[out + ch * hw] += w;
+                            image[out + (ch + 1) * hw] += w * stage.staged[o + 2];
+                            t = next;
+                            last = stage.ranks[s] + 1;
                         }
-                        image[(b * (ch + 2) + ch) * hw + pix] += w;
-                        image[(b * (ch + 2) + ch + 1) * hw + pix] += w * stage.staged[o + 2];
-                        t = next;
-                        last = stage.ranks[s] + 1;
                     }
                 }
             }
+            sync_cube();
+            saturated = cube_max(&mut stage.scan, select(done, 0u32, 1u32), BLOCK) == 0;
         }
-        sync_cube();
     }
     if inside {
         transmittance[b * hw + pix] = t;
@@ -517,62 +522,66 @@ pub fn rasterize_backward_kernel(
         n = contributors[b * hw + pix];
     }
     let chunks = n_pad as usize / BLOCK;
+    // Chunks at or past the tile's largest contributor count hold nothing to undo.
+    let needed = cube_max(&mut stage.scan, n, BLOCK) as usize;
     for back in 0..chunks {
         let chunk = chunks - 1 - back;
-        let hits = stage_chunk(projected, order, &mut stage, chunk, b, count, n_pad);
-        for back_s in 0..hits {
-            let s = hits - 1 - back_s;
-            let g = stage.ids[s];
-            if inside && stage.ranks[s] < n {
-                let o = s * STAGED;
-                let dx = px + 0.5 - stage.staged[o];
-                let dy = py + 0.5 - stage.staged[o + 1];
-                let a = alpha_at(&stage.staged, s, px, py, dx, dy);
-                if a.alpha > 0.0 {
-                    let tk = t / (1.0 - a.alpha);
-                    t = tk;
-                    let wk = a.alpha * tk;
-                    let f = (b * count as usize + g as usize) * ch;
-                    let slot = (b * count as usize + g as usize) * stride;
-                    let depth = stage.staged[o + 2];
-                    let mut d_alpha = 0.0f32;
-                    for c in 0..ch + 2 {
-                        let mut fc = 1.0f32;
-                        if c < ch {
-                            fc = features[f + c];
-                        } else if c == ch + 1 {
-                            fc = depth;
+        if chunk * BLOCK < needed {
+            let hits = stage_chunk(projected, order, &mut stage, chunk, b, count, n_pad);
+            for back_s in 0..hits {
+                let s = hits - 1 - back_s;
+                let g = stage.ids[s];
+                if inside && stage.ranks[s] < n {
+                    let o = s * STAGED;
+                    let dx = px + 0.5 - stage.staged[o];
+                    let dy = py + 0.5 - stage.staged[o + 1];
+                    let a = alpha_at(&stage.staged, s, px, py, dx, dy);
+                    if a.alpha > 0.0 {
+                        let tk = t / (1.0 - a.alpha);
+                        t = tk;
+                        let wk = a.alpha * tk;
+                        let f = (b * count as usize + g as usize) * ch;
+                        let slot = (b * count as usize + g as usize) * stride;
+                        let depth = stage.staged[o + 2];
+                        let mut d_alpha = 0.0f32;
+                        for c in 0..ch + 2 {
+                            let mut fc = 1.0f32;
+                            if c < ch {
+                                fc = features[f + c];
+                            } else if c == ch + 1 {
+                                fc = depth;
+                            }
+                            let at = (b * (ch + 2) + c) * hw + pix;
+                            let gc = grad_image[at];
+                            let bc = behind[at];
+                            d_alpha += (fc - bc) * gc;
+                            behind[at] = a.alpha * fc + (1.0 - a.alpha) * bc;
+                            if c < ch {
+                                grads[slot + GRAD_HEAD + c].fetch_add(wk * gc);
+                            } else if c == ch + 1 {
+                                grads[slot + 2].fetch_add(wk * gc);
+                            }
                         }
-                        let at = (b * (ch + 2) + c) * hw + pix;
-                        let gc = grad_image[at];
-                        let bc = behind[at];
-                        d_alpha += (fc - bc) * gc;
-                        behind[at] = a.alpha * fc + (1.0 - a.alpha) * bc;
-                        if c < ch {
-                            grads[slot + GRAD_HEAD + c].fetch_add(wk * gc);
-                        } else if c == ch + 1 {
-                            grads[slot + 2].fetch_add(wk * gc);
+                        d_alpha *= tk;
+                        if a.raw < MAX_ALPHA {
+                            let (ca, cb, cc) = (
+                                stage.staged[o + 3],
+                                stage.staged[o + 4],
+                                stage.staged[o + 5],
+                            );
+                            let d_power = -a.alpha * d_alpha;
+                            grads[slot + 6].fetch_add(a.gauss * d_alpha);
+                            grads[slot].fetch_add(-d_power * (ca * dx + cb * dy));
+                            grads[slot + 1].fetch_add(-d_power * (cb * dx + cc * dy));
+                            grads[slot + 3].fetch_add(0.5 * dx * dx * d_power);
+                            grads[slot + 4].fetch_add(dx * dy * d_power);
+                            grads[slot + 5].fetch_add(0.5 * dy * dy * d_power);
                         }
-                    }
-                    d_alpha *= tk;
-                    if a.raw < MAX_ALPHA {
-                        let (ca, cb, cc) = (
-                            stage.staged[o + 3],
-                            stage.staged[o + 4],
-                            stage.staged[o + 5],
-                        );
-                        let d_power = -a.alpha * d_alpha;
-                        grads[slot + 6].fetch_add(a.gauss * d_alpha);
-                        grads[slot].fetch_add(-d_power * (ca * dx + cb * dy));
-                        grads[slot + 1].fetch_add(-d_power * (cb * dx + cc * dy));
-                        grads[slot + 3].fetch_add(0.5 * dx * dx * d_power);
-                        grads[slot + 4].fetch_add(dx * dy * d_power);
-                        grads[slot + 5].fetch_add(0.5 * dy * dy * d_power);
                     }
                 }
             }
+            sync_cube();
         }
-        sync_cube();
     }
 }
 
