@@ -312,6 +312,56 @@ pub fn bitonic_step_kernel(
     }
 }
 
+/// The passes of a bitonic sort whose compared pairs lie within one aligned block of [`BLOCK`]
+/// entries (`j < BLOCK`), done in shared memory by one cube per block: the merges of sizes
+/// `k_first..=k_last` (doubling), the first starting at distance `j_first`, the others at `k / 2`.
+/// Directions as in [`bitonic_step_kernel`].
+#[cube(launch)]
+pub fn bitonic_local_kernel(
+    keys: &mut Tensor<u32>,
+    values: &mut Tensor<u32>,
+    k_first: u32,
+    k_last: u32,
+    j_first: u32,
+    n_pad: u32,
+) {
+    let t = UNIT_POS as usize;
+    let i = CUBE_POS as usize * BLOCK + t;
+    let mut sk = Shared::<[u32]>::new_slice(BLOCK);
+    let mut sv = Shared::<[u32]>::new_slice(BLOCK);
+    sk[t] = keys[i];
+    sv[t] = values[i];
+    sync_cube();
+    let mut k = k_first;
+    while k <= k_last {
+        let mut j = k / 2;
+        if k == k_first {
+            j = j_first;
+        }
+        while j > 0 {
+            let l = t ^ j as usize;
+            if l > t {
+                let (ki, kl) = (sk[t], sk[l]);
+                let (vi, vl) = (sv[t], sv[l]);
+                let greater = ki > kl || (ki == kl && vi > vl);
+                let less = ki < kl || (ki == kl && vi < vl);
+                let ascending = (i as u32 & (n_pad - 1) & k) == 0;
+                if (ascending && greater) || (!ascending && less) {
+                    sk[t] = kl;
+                    sk[l] = ki;
+                    sv[t] = vl;
+                    sv[l] = vi;
+                }
+            }
+            sync_cube();
+            j /= 2;
+        }
+        k *= 2;
+    }
+    keys[i] = sk[t];
+    values[i] = sv[t];
+}
+
 /// Shared memory of one tile's cube: the Gaussians of the current chunk that meet the tile,
 /// compacted in depth order.
 #[derive(CubeType)]

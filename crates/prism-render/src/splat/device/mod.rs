@@ -10,7 +10,7 @@
 //!
 //! The pipeline of a forward pass: `project_kernel` (one unit per Gaussian: 2D mean, conic,
 //! opacity, pixel rect, depth key), a bitonic sort of `(depth, index)` per camera (on the
-//! device, `log2(n)(log2(n) + 1) / 2` passes), and `rasterize_kernel` (one cube per 16x16
+//! device; the passes over nearby pairs in shared memory), and `rasterize_kernel` (one cube per 16x16
 //! tile: it walks the camera's depth order in chunks of 256 staged in shared memory, skipping
 //! the Gaussians whose rect misses the tile). The reverse pass walks the same chunks back to
 //! front and accumulates the projected gradients with float atomics, then
@@ -150,14 +150,30 @@ fn tiled(b: usize, h: usize, w: usize) -> (CubeCount, CubeDim) {
     )
 }
 
-/// Sorts each `n_pad` segment of `(keys, values)` ascending, on the device.
+/// Sorts each `n_pad` segment of `(keys, values)` ascending, on the device: a bitonic network
+/// whose passes over pairs closer than [`BLOCK`] run in shared memory, one launch for all of
+/// them between two global passes (28 launches for 16k Gaussians instead of 105).
 fn sort_segments(keys: &CubeTensor, values: &CubeTensor, n_pad: usize) {
     let total = keys.meta.shape().num_elements();
     let (count, dim) = elementwise(keys, total);
-    let mut k = 2;
+    let local = |k_first: usize, k_last: usize, j_first: usize| {
+        kernels::bitonic_local_kernel::launch(
+            &keys.client,
+            CubeCount::Static((total / BLOCK) as u32, 1, 1),
+            CubeDim::new_1d(BLOCK as u32),
+            keys.clone().into_tensor_arg(),
+            values.clone().into_tensor_arg(),
+            k_first as u32,
+            k_last as u32,
+            j_first as u32,
+            n_pad as u32,
+        );
+    };
+    local(2, BLOCK.min(n_pad), 1);
+    let mut k = 2 * BLOCK;
     while k <= n_pad {
         let mut j = k / 2;
-        while j >= 1 {
+        while j >= BLOCK {
             kernels::bitonic_step_kernel::launch(
                 &keys.client,
                 count.clone(),
@@ -170,6 +186,7 @@ fn sort_segments(keys: &CubeTensor, values: &CubeTensor, n_pad: usize) {
             );
             j /= 2;
         }
+        local(k, k, BLOCK / 2);
         k *= 2;
     }
 }
