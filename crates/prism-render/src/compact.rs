@@ -45,7 +45,8 @@ pub fn cube_max(buf: &mut Shared<[u32]>, value: u32, #[comptime] len: usize) -> 
         sync_cube();
         offset *= 2;
     }
-    let out = buf[len - 1] + 0u32;
+    // (The maximum of all is at least this unit's value: `max` makes a copy of it.)
+    let out = u32::max(buf[len - 1], value);
     sync_cube();
     out
 }

@@ -53,7 +53,8 @@ fn assert_close(what: &str, got: &[f32], want: &[f32], tol: f32, spare: usize) {
         .iter()
         .zip(want)
         .enumerate()
-        .filter(|(_, (g, w))| !((*g - *w).abs() <= tol * scale))
+        // A NaN on either side counts as off.
+        .filter(|(_, (g, w))| (*g - *w).abs().is_nan() || (*g - *w).abs() > tol * scale)
         .map(|(i, (g, w))| (i, *g, *w))
         .collect();
     assert!(

@@ -61,8 +61,8 @@ fn corner(vertices: &Tensor<f32>, views: &Tensor<f32>, v: usize, vb: usize) -> C
     let x = views[vb] * px + views[vb + 1] * py + views[vb + 2] * pz + views[vb + 9];
     let y = views[vb + 3] * px + views[vb + 4] * py + views[vb + 5] * pz + views[vb + 10];
     let z = views[vb + 6] * px + views[vb + 7] * py + views[vb + 8] * pz + views[vb + 11];
-    // Finite: x - x is 0 for a finite x, NaN for an infinite or NaN one.
-    let finite = (x - x) == 0.0 && (y - y) == 0.0 && (z - z) == 0.0;
+    // Finite: a NaN or an infinity fails the comparison.
+    let finite = f32::abs(x) <= f32::MAX && f32::abs(y) <= f32::MAX && f32::abs(z) <= f32::MAX;
     Corner {
         sx: views[vb + 12] * x / z + views[vb + 14],
         sy: views[vb + 13] * y / z + views[vb + 15],
@@ -89,7 +89,7 @@ fn project_faces_kernel(
     width: u32,
     height: u32,
 ) {
-    let pos = ABSOLUTE_POS as usize;
+    let pos = ABSOLUTE_POS;
     if pos >= out.len() / TRIANGLE {
         terminate!();
     }

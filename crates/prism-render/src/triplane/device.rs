@@ -107,7 +107,7 @@ fn sample_kernel(
     channels: u32,
     resolution: u32,
 ) {
-    let pos = ABSOLUTE_POS as usize;
+    let pos = ABSOLUTE_POS;
     if pos >= out.len() {
         terminate!();
     }
@@ -146,7 +146,7 @@ fn sample_backward_kernel(
     channels: u32,
     resolution: u32,
 ) {
-    let pos = ABSOLUTE_POS as usize;
+    let pos = ABSOLUTE_POS;
     let n = points as usize;
     if pos >= grad_coords.len() / 3 {
         terminate!();

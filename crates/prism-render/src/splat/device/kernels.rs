@@ -235,7 +235,7 @@ pub fn project_kernel(
     width: u32,
     height: u32,
 ) {
-    let pos = ABSOLUTE_POS as usize;
+    let pos = ABSOLUTE_POS;
     if pos >= keys.len() {
         terminate!();
     }
@@ -290,7 +290,7 @@ pub fn bitonic_step_kernel(
     k: u32,
     n_pad: u32,
 ) {
-    let i = ABSOLUTE_POS as usize;
+    let i = ABSOLUTE_POS;
     if i >= keys.len() {
         terminate!();
     }
@@ -326,7 +326,7 @@ pub fn bitonic_local_kernel(
     n_pad: u32,
 ) {
     let t = UNIT_POS as usize;
-    let i = CUBE_POS as usize * BLOCK + t;
+    let i = CUBE_POS * BLOCK + t;
     let mut sk = Shared::<[u32]>::new_slice(BLOCK);
     let mut sv = Shared::<[u32]>::new_slice(BLOCK);
     sk[t] = keys[i];
@@ -653,7 +653,7 @@ pub fn project_backward_kernel(
     count: u32,
     channels: u32,
 ) {
-    let g = ABSOLUTE_POS as usize;
+    let g = ABSOLUTE_POS;
     if g >= opacity_logits.len() {
         terminate!();
     }
