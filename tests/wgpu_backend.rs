@@ -18,7 +18,7 @@ use burn::optim::{AdamWConfig, GradientsParams};
 use burn::tensor::{Device, Tensor};
 use prism_data::BackendKind;
 use prism_data::dataset::{
-    DatasetReader, PrismBatch, PrismBatcher, SampleDataset, SplitKind, TargetSelection,
+    DatasetReader, PrismBatch, PrismBatcher, Sample, SampleDataset, SplitKind, TargetSelection,
 };
 use prism_model::{Prism, protocol_views};
 use prism_render::transfer::geometry_host_reads;
@@ -151,21 +151,7 @@ fn one_training_step_on_wgpu_matches_flex() {
     let _serial = serial();
     let Some(wgpu) = wgpu_device() else { return };
     let config = tiny();
-    let data = ensure_synthetic_dataset(&config.data, false).expect("tiny synthetic dataset");
-    let reader = DatasetReader::open(&data).expect("dataset");
-    let background = reader.meta().background;
-    let dataset = SampleDataset::new(
-        reader,
-        SplitKind::Train,
-        TargetSelection::Random {
-            count: 2,
-            repeats: 1,
-        },
-        Some((32, 32)),
-        0,
-    )
-    .expect("samples");
-    let samples = vec![dataset.load(0).unwrap(), dataset.load(1).unwrap()];
+    let (samples, background) = samples(&config, 2, 32);
     let flex = Device::flex();
     flex.seed(7);
     let initial = config.model.init(&flex);
@@ -206,9 +192,9 @@ fn one_training_step_on_wgpu_matches_flex() {
     assert!(moved > 10, "only {moved} parameters moved");
 }
 
-/// The geometry reads of one teacher step (forward, objective, backward, AdamW) of `config`
-/// on `device`, on a batch of its synthetic dataset at `size` pixels.
-fn geometry_reads_of_a_step(config: &TrainingConfig, device: &Device, size: u32) -> u64 {
+/// The first `count` training samples of `config`'s synthetic dataset (two targets each) at
+/// `size` pixels, and the dataset's background colour.
+fn samples(config: &TrainingConfig, count: usize, size: u32) -> (Vec<Sample>, [f32; 3]) {
     let data = ensure_synthetic_dataset(&config.data, false).expect("synthetic dataset");
     let reader = DatasetReader::open(&data).expect("dataset");
     let background = reader.meta().background;
@@ -216,14 +202,21 @@ fn geometry_reads_of_a_step(config: &TrainingConfig, device: &Device, size: u32)
         reader,
         SplitKind::Train,
         TargetSelection::Random {
-            count: 1,
+            count: 2,
             repeats: 1,
         },
         Some((size, size)),
         0,
     )
     .expect("samples");
-    let samples = vec![dataset.load(0).unwrap()];
+    let samples = (0..count).map(|i| dataset.load(i).unwrap()).collect();
+    (samples, background)
+}
+
+/// The geometry reads of one teacher step (forward, objective, backward, AdamW) of `config`
+/// on `device`, on a batch of its synthetic dataset at `size` pixels.
+fn geometry_reads_of_a_step(config: &TrainingConfig, device: &Device, size: u32) -> u64 {
+    let (samples, background) = samples(config, 1, size);
     let ad = device.clone().autodiff();
     device.seed(3);
     let model = config.model.init(device).to_device(&ad).train();

@@ -1,6 +1,10 @@
 //! The weak-perspective camera `pi = (s, tx, ty)` of the SMPL-X branch and how it places the
 //! body in the world through the source camera.
 //!
+//! The branch computes these with tensor ops on the model's device
+//! (`SmplxBranch::world_vertices` and `SmplxBranch::targets`); the functions here are the same
+//! formulas on the host, the reference its tests check against.
+//!
 //! The body model gives posed vertices `v` and joints in its own frame (Y up). A dataset's
 //! `body.json` places them in the world by a uniform scale and a translation,
 //! `world = sigma v + transl`. The anchor of the camera is the root joint `J_0` (the pelvis; it
@@ -32,12 +36,15 @@
 //! deviation 1 cm, plus the protocol's +-5 cm height jitter). The source view is exact for any
 //! `sigma`; a wrong `sigma` shifts the body along the source rays, which the target views see.
 
+#[cfg(test)]
 use glam::{Mat3, Vec3};
+#[cfg(test)]
 use prism_data::Camera;
 
 /// The weak-perspective camera `(s, tx, ty)` of a body with root joint `root` (model frame)
 /// placed by `world = scale v + transl`, seen by `camera` (see the module docs).
-pub fn weak_perspective(scale: f32, transl: Vec3, root: Vec3, camera: &Camera) -> [f32; 3] {
+#[cfg(test)]
+pub(crate) fn weak_perspective(scale: f32, transl: Vec3, root: Vec3, camera: &Camera) -> [f32; 3] {
     let anchor = scale * root + transl;
     let p = camera.world_to_camera(anchor);
     [scale / p.z, p.x / p.z, p.y / p.z]
@@ -46,7 +53,8 @@ pub fn weak_perspective(scale: f32, transl: Vec3, root: Vec3, camera: &Camera) -
 /// The world placement of posed vertices `v` (model frame) from the weak-perspective camera
 /// `pi = (s, tx, ty)`, the root joint `root` and the scale `scale`:
 /// `world(v) = scale (v - J_0) + C + R (Z tx, Z ty, Z)`, `Z = scale / s`.
-pub fn place(
+#[cfg(test)]
+pub(crate) fn place(
     vertices: &[Vec3],
     root: Vec3,
     pi: [f32; 3],
@@ -64,7 +72,8 @@ pub fn place(
 }
 
 /// The scale that makes posed vertices `height` tall along Y: `height / (max_y - min_y)`.
-pub fn scale_for_height(vertices: &[Vec3], height: f32) -> f32 {
+#[cfg(test)]
+pub(crate) fn scale_for_height(vertices: &[Vec3], height: f32) -> f32 {
     let (lo, hi) = vertices
         .iter()
         .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), v| {

@@ -10,14 +10,14 @@
 //! intrinsics and a camera-to-world matrix, pixel centres at `(x + 0.5, y + 0.5)`, images as
 //! `[B, C, H, W]` tensors.
 
-#[cfg(any(feature = "wgpu", feature = "cuda"))]
-mod compact;
 pub mod error;
 pub mod files;
 #[cfg(any(feature = "wgpu", feature = "cuda"))]
 mod launch;
 pub mod mesh;
 pub mod splat;
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+mod tiles;
 pub mod transfer;
 pub mod triplane;
 

@@ -7,7 +7,7 @@
 mod common;
 
 use burn::tensor::Device;
-use common::{Scene, device, host, orbit_camera, serial, wgpu};
+use common::{Scene, device, host, orbit_camera, serial, tracked, wgpu};
 use prism_data::Camera;
 use prism_render::splat::{Gaussians, render};
 use prism_render::transfer::geometry_host_reads;
@@ -23,13 +23,7 @@ fn render_and_grads(
     let plain = render(&scene.tensors(dev), cameras).unwrap();
     let images = vec![host(plain.features), host(plain.alpha), host(plain.depth)];
     let g = scene.tensors(&dev.clone().autodiff());
-    let g = Gaussians {
-        means: g.means.require_grad(),
-        log_scales: g.log_scales.require_grad(),
-        rotations: g.rotations.require_grad(),
-        opacity_logits: g.opacity_logits.require_grad(),
-        features: g.features.require_grad(),
-    };
+    let g = tracked(g);
     let r = render(&g, cameras).unwrap();
     let loss = r.features.powi_scalar(2).sum() + r.alpha.sum() + r.depth.sum() * 0.3;
     let grads = loss.backward();

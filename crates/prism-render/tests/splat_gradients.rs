@@ -9,7 +9,7 @@
 mod common;
 
 use burn::tensor::{Device, Tensor, TensorData};
-use common::{Scene, device, host, orbit_camera};
+use common::{Scene, device, host, orbit_camera, tracked};
 use prism_data::Camera;
 use prism_render::splat::{Gaussians, render};
 use rand::{Rng, SeedableRng};
@@ -166,13 +166,7 @@ fn check_gradients_on(dev: &Device, seed: u64, camera: Camera, channels: usize) 
 
     // Analytic gradients through the autodiff graph.
     let g = base.tensors(&ad);
-    let g = Gaussians {
-        means: g.means.require_grad(),
-        log_scales: g.log_scales.require_grad(),
-        rotations: g.rotations.require_grad(),
-        opacity_logits: g.opacity_logits.require_grad(),
-        features: g.features.require_grad(),
-    };
+    let g = tracked(g);
     let grads = weights.loss(&g, &camera, &ad).backward();
     let analytic = [
         host(g.means.grad(&grads).unwrap()),
@@ -231,13 +225,7 @@ fn batched_gradients_are_per_element_gradients_on_ndarray_and_flex() {
     ];
     let grads_of = |scene: &Scene, cams: &[Camera], dev: &Device| -> Vec<Vec<f32>> {
         let g = scene.tensors(dev);
-        let g = Gaussians {
-            means: g.means.require_grad(),
-            log_scales: g.log_scales.require_grad(),
-            rotations: g.rotations.require_grad(),
-            opacity_logits: g.opacity_logits.require_grad(),
-            features: g.features.require_grad(),
-        };
+        let g = tracked(g);
         let r = render(&g, cams).unwrap();
         let loss = (r.features.powi_scalar(2).sum() + r.alpha.sum() + r.depth.sum()).backward();
         vec![

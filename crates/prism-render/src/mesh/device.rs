@@ -17,15 +17,15 @@ use cubecl::prelude::*;
 
 use super::op::{FragmentTensors, FragmentTensorsMetadata, MeshBackend, MeshCameras, MeshFaces};
 use super::raster::NEAR_PLANE;
-use crate::compact::compact;
 use crate::launch::{elementwise, prepared};
+use crate::splat::TILE_SIZE as TILE;
+use crate::tiles::{compact, tile_pixel};
 
 /// Floats per projected triangle: `s0x s0y s1x s1y s2x s2y iz0 iz1 iz2 area x0 y0 x1 y1 valid`.
 const TRIANGLE: usize = 15;
 /// Floats per camera: world-to-camera rotation (row-major), translation, `fx fy cx cy`.
 const VIEW: usize = 16;
-/// Tile side in pixels, and the triangles staged per chunk.
-const TILE: usize = 16;
+/// The triangles staged per chunk: one per unit of a tile's cube.
 const BLOCK: usize = TILE * TILE;
 
 /// The output shapes of [`MeshBackend::mesh_rasterize`].
@@ -139,11 +139,9 @@ fn raster_kernel(
     width: u32,
     height: u32,
 ) {
-    let b = CUBE_POS_Z as usize;
-    let x = CUBE_POS_X * TILE as u32 + UNIT_POS_X;
-    let y = CUBE_POS_Y * TILE as u32 + UNIT_POS_Y;
-    let inside = x < width && y < height;
-    let (qx, qy) = (f32::cast_from(x) + 0.5, f32::cast_from(y) + 0.5);
+    let here = tile_pixel(width, height);
+    let (b, inside, px, py) = (here.b, here.inside, here.px, here.py);
+    let (qx, qy) = (px + 0.5, py + 0.5);
     let tile_x0 = f32::cast_from(CUBE_POS_X * TILE as u32);
     let tile_y0 = f32::cast_from(CUBE_POS_Y * TILE as u32);
     let last = (TILE - 1) as f32;
@@ -183,8 +181,6 @@ fn raster_kernel(
         let hits = scan[BLOCK - 1] as usize;
         for s in 0..hits {
             let o = s * TRIANGLE;
-            let px = f32::cast_from(x);
-            let py = f32::cast_from(y);
             if inside
                 && px >= staged[o + 10]
                 && px <= staged[o + 12]
@@ -216,7 +212,7 @@ fn raster_kernel(
         sync_cube();
     }
     if inside {
-        let pix = (b * height as usize + y as usize) * width as usize + x as usize;
+        let pix = b * here.hw + here.pix;
         out_faces[pix] = f32::cast_from(face) - 1.0;
         out_barycentrics[3 * pix] = w0;
         out_barycentrics[3 * pix + 1] = w1;

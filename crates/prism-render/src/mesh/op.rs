@@ -78,22 +78,20 @@ fn rasterize_on_host<B: Backend>(
     }
 }
 
-impl MeshBackend for Flex {
-    fn mesh_rasterize(
-        vertices: FloatTensor<Self>,
-        faces: MeshFaces,
-        cameras: MeshCameras,
-    ) -> FragmentTensors<Self> {
-        rasterize_on_host::<Self>(vertices, &faces, &cameras)
-    }
+/// The CPU backends: the host rasterizer.
+macro_rules! host_mesh {
+    ($backend:ty) => {
+        impl MeshBackend for $backend {
+            fn mesh_rasterize(
+                vertices: FloatTensor<Self>,
+                faces: MeshFaces,
+                cameras: MeshCameras,
+            ) -> FragmentTensors<Self> {
+                rasterize_on_host::<Self>(vertices, &faces, &cameras)
+            }
+        }
+    };
 }
 
-impl MeshBackend for NdArray {
-    fn mesh_rasterize(
-        vertices: FloatTensor<Self>,
-        faces: MeshFaces,
-        cameras: MeshCameras,
-    ) -> FragmentTensors<Self> {
-        rasterize_on_host::<Self>(vertices, &faces, &cameras)
-    }
-}
+host_mesh!(Flex);
+host_mesh!(NdArray);

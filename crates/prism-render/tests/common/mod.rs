@@ -114,6 +114,17 @@ pub fn orbit_camera(width: u32, height: u32, f: f32, yaw: f32, pitch: f32) -> Ca
 }
 
 /// A tensor's values on the host.
+/// `g` with every parameter tracked by autodiff (on an autodiff device).
+pub fn tracked(g: Gaussians) -> Gaussians {
+    Gaussians {
+        means: g.means.require_grad(),
+        log_scales: g.log_scales.require_grad(),
+        rotations: g.rotations.require_grad(),
+        opacity_logits: g.opacity_logits.require_grad(),
+        features: g.features.require_grad(),
+    }
+}
+
 pub fn host<const D: usize>(t: Tensor<D>) -> Vec<f32> {
     t.into_data().convert::<f32>().try_to_vec::<f32>().unwrap()
 }

@@ -10,7 +10,7 @@
 
 use cubecl::prelude::*;
 
-use crate::compact::{compact, cube_max};
+use crate::tiles::{compact, cube_max, tile_pixel};
 
 use crate::splat::host::{
     DILATION, EXTENT_SIGMAS, MAX_ALPHA, MAX_POWER, MIN_ALPHA, MIN_TRANSMITTANCE, NEAR_PLANE,
@@ -429,12 +429,17 @@ fn stage_chunk(
     stage.scan[BLOCK - 1] as usize
 }
 
-/// The Gaussian staged in slot `s` at pixel centre offset `(dx, dy)`: `(alpha, gauss, raw)`
-/// where it contributes, `alpha = 0` where it does not (host `overlap` and `alpha_at`).
+/// The Gaussian staged in slot `s` at pixel `(px, py)`: the offset of the pixel centre from
+/// its mean and `(alpha, gauss, raw)` where it contributes, `alpha = 0` where it does not (host
+/// `overlap` and `alpha_at`).
 #[cube]
-fn alpha_at(staged: &Shared<[f32]>, s: usize, px: f32, py: f32, dx: f32, dy: f32) -> Sample {
+fn alpha_at(staged: &Shared<[f32]>, s: usize, px: f32, py: f32) -> Sample {
     let o = s * STAGED;
+    let dx = px + 0.5 - staged[o];
+    let dy = py + 0.5 - staged[o + 1];
     let mut out = Sample {
+        dx,
+        dy,
         alpha: 0.0,
         gauss: 0.0,
         raw: 0.0,
@@ -459,6 +464,8 @@ fn alpha_at(staged: &Shared<[f32]>, s: usize, px: f32, py: f32, dx: f32, dy: f32
 /// A Gaussian's alpha at one pixel, its Gaussian falloff and the alpha before the clamp.
 #[derive(CubeType, Clone, Copy)]
 pub struct Sample {
+    dx: f32,
+    dy: f32,
     alpha: f32,
     gauss: f32,
     raw: f32,
@@ -481,13 +488,8 @@ pub fn rasterize_kernel(
     height: u32,
     channels: u32,
 ) {
-    let b = CUBE_POS_Z as usize;
-    let x = CUBE_POS_X * TILE_SIZE as u32 + UNIT_POS_X;
-    let y = CUBE_POS_Y * TILE_SIZE as u32 + UNIT_POS_Y;
-    let inside = x < width && y < height;
-    let (px, py) = (f32::cast_from(x), f32::cast_from(y));
-    let hw = (width * height) as usize;
-    let pix = (y * width + x) as usize;
+    let here = tile_pixel(width, height);
+    let (b, inside, px, py, pix, hw) = (here.b, here.inside, here.px, here.py, here.pix, here.hw);
     let ch = channels as usize;
     let mut stage = new_stage();
     let mut t = 1.0f32;
@@ -503,9 +505,7 @@ pub fn rasterize_kernel(
                 if !done {
                     let g = stage.ids[s];
                     let o = s * STAGED;
-                    let dx = px + 0.5 - stage.staged[o];
-                    let dy = py + 0.5 - stage.staged[o + 1];
-                    let a = alpha_at(&stage.staged, s, px, py, dx, dy);
+                    let a = alpha_at(&stage.staged, s, px, py);
                     if a.alpha > 0.0 {
                         let next = t * (1.0 - a.alpha);
                         if next < MIN_TRANSMITTANCE {
@@ -555,13 +555,8 @@ pub fn rasterize_backward_kernel(
     height: u32,
     channels: u32,
 ) {
-    let b = CUBE_POS_Z as usize;
-    let x = CUBE_POS_X * TILE_SIZE as u32 + UNIT_POS_X;
-    let y = CUBE_POS_Y * TILE_SIZE as u32 + UNIT_POS_Y;
-    let inside = x < width && y < height;
-    let (px, py) = (f32::cast_from(x), f32::cast_from(y));
-    let hw = (width * height) as usize;
-    let pix = (y * width + x) as usize;
+    let here = tile_pixel(width, height);
+    let (b, inside, px, py, pix, hw) = (here.b, here.inside, here.px, here.py, here.pix, here.hw);
     let ch = channels as usize;
     let stride = GRAD_HEAD + ch;
     let mut stage = new_stage();
@@ -583,9 +578,8 @@ pub fn rasterize_backward_kernel(
                 let g = stage.ids[s];
                 if inside && stage.ranks[s] < n {
                     let o = s * STAGED;
-                    let dx = px + 0.5 - stage.staged[o];
-                    let dy = py + 0.5 - stage.staged[o + 1];
-                    let a = alpha_at(&stage.staged, s, px, py, dx, dy);
+                    let a = alpha_at(&stage.staged, s, px, py);
+                    let (dx, dy) = (a.dx, a.dy);
                     if a.alpha > 0.0 {
                         let tk = t / (1.0 - a.alpha);
                         t = tk;

@@ -117,6 +117,17 @@ fn backward_meta(
     }
 }
 
+/// The inputs as contiguous `f32` tensors.
+fn prepared_inputs(inputs: SplatInputs<CubeBackend>) -> SplatInputs<CubeBackend> {
+    SplatInputs {
+        means: prepared(inputs.means),
+        log_scales: prepared(inputs.log_scales),
+        rotations: prepared(inputs.rotations),
+        opacity_logits: prepared(inputs.opacity_logits),
+        features: prepared(inputs.features),
+    }
+}
+
 /// The cameras as a `[B, VIEW]` device tensor (an upload, never a read).
 fn views_tensor(cameras: &SplatCameras, device: &CubeDevice) -> CubeTensor {
     let mut data = Vec::with_capacity(cameras.0.len() * VIEW);
@@ -197,11 +208,13 @@ impl SplatDeviceOps for CubeBackend {
         let client = inputs.means.client.clone();
         let device = inputs.means.device.clone();
         let n_pad = padded(n);
-        let means = prepared(inputs.means);
-        let log_scales = prepared(inputs.log_scales);
-        let rotations = prepared(inputs.rotations);
-        let opacity_logits = prepared(inputs.opacity_logits);
-        let features = prepared(inputs.features);
+        let SplatInputs {
+            means,
+            log_scales,
+            rotations,
+            opacity_logits,
+            features,
+        } = prepared_inputs(inputs);
         let views = views_tensor(&cameras, &device);
         let empty = |shape: Vec<usize>, dtype| {
             empty_device_dtype(client.clone(), device.clone(), Shape::from(shape), dtype)
@@ -281,11 +294,13 @@ impl SplatDeviceOps for CubeBackend {
             inputs.opacity_logits.meta.shape().clone(),
             inputs.features.meta.shape().clone(),
         ];
-        let means = prepared(inputs.means);
-        let log_scales = prepared(inputs.log_scales);
-        let rotations = prepared(inputs.rotations);
-        let opacity_logits = prepared(inputs.opacity_logits);
-        let features = prepared(inputs.features);
+        let SplatInputs {
+            means,
+            log_scales,
+            rotations,
+            opacity_logits,
+            features,
+        } = prepared_inputs(inputs);
         let grad = prepared(grad);
         let views = views_tensor(&cameras, &device);
         let zeros = |shape: Vec<usize>| {
