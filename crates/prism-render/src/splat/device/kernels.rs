@@ -279,6 +279,17 @@ pub fn project_kernel(
     values[pos] = i as u32;
 }
 
+/// Whether the pair `(ki, vi)` at flat index `i` and `(kl, vl)` at its partner (further on) must
+/// swap in a merge of size `k`: ascending or descending by `(key, value)`, the direction from
+/// the index within its `n_pad` segment so that every segment ends ascending.
+#[cube]
+fn out_of_order(ki: u32, vi: u32, kl: u32, vl: u32, i: u32, k: u32, n_pad: u32) -> bool {
+    let greater = ki > kl || (ki == kl && vi > vl);
+    let less = ki < kl || (ki == kl && vi < vl);
+    let ascending = (i & (n_pad - 1) & k) == 0;
+    (ascending && greater) || (!ascending && less)
+}
+
 /// One compare-and-swap pass of a bitonic sort of `(key, value)` pairs, ascending within each
 /// power-of-two segment (`k` and `j` of the classic network: `k` the size of the bitonic
 /// sequences being merged, `j` the distance of the compared pairs).
@@ -298,12 +309,7 @@ pub fn bitonic_step_kernel(
     if l > i {
         let (ki, kl) = (keys[i], keys[l]);
         let (vi, vl) = (values[i], values[l]);
-        let greater = ki > kl || (ki == kl && vi > vl);
-        let less = ki < kl || (ki == kl && vi < vl);
-        // The direction comes from the index within its segment, so that every segment ends
-        // ascending.
-        let ascending = (i as u32 & (n_pad - 1) & k) == 0;
-        if (ascending && greater) || (!ascending && less) {
+        if out_of_order(ki, vi, kl, vl, i as u32, k, n_pad) {
             keys[i] = kl;
             keys[l] = ki;
             values[i] = vl;
@@ -343,10 +349,7 @@ pub fn bitonic_local_kernel(
             if l > t {
                 let (ki, kl) = (sk[t], sk[l]);
                 let (vi, vl) = (sv[t], sv[l]);
-                let greater = ki > kl || (ki == kl && vi > vl);
-                let less = ki < kl || (ki == kl && vi < vl);
-                let ascending = (i as u32 & (n_pad - 1) & k) == 0;
-                if (ascending && greater) || (!ascending && less) {
+                if out_of_order(ki, vi, kl, vl, i as u32, k, n_pad) {
                     sk[t] = kl;
                     sk[l] = ki;
                     sv[t] = vl;
