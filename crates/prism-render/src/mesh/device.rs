@@ -17,14 +17,12 @@ use cubecl::prelude::*;
 
 use super::op::{FragmentTensors, FragmentTensorsMetadata, MeshBackend, MeshCameras, MeshFaces};
 use super::raster::NEAR_PLANE;
-use crate::launch::{elementwise, prepared};
+use crate::launch::{PINHOLE, cameras_tensor, elementwise, prepared};
 use crate::splat::TILE_SIZE as TILE;
 use crate::tiles::{compact, tile_pixel};
 
 /// Floats per projected triangle: `s0x s0y s1x s1y s2x s2y iz0 iz1 iz2 area x0 y0 x1 y1 valid`.
 const TRIANGLE: usize = 15;
-/// Floats per camera: world-to-camera rotation (row-major), translation, `fx fy cx cy`.
-const VIEW: usize = 16;
 /// The triangles staged per chunk: one per unit of a tile's cube.
 const BLOCK: usize = TILE * TILE;
 
@@ -96,7 +94,7 @@ fn project_faces_kernel(
     let nf = num_faces as usize;
     let (b, f) = (pos / nf, pos % nf);
     let base = b * num_vertices as usize;
-    let vb = b * VIEW;
+    let vb = b * PINHOLE;
     let c0 = corner(vertices, views, base + faces[3 * f] as usize, vb);
     let c1 = corner(vertices, views, base + faces[3 * f + 1] as usize, vb);
     let c2 = corner(vertices, views, base + faces[3 * f + 2] as usize, vb);
@@ -225,25 +223,6 @@ fn raster_kernel(
     }
 }
 
-/// The cameras as a `[B, VIEW]` device tensor (an upload).
-fn views_tensor(cameras: &MeshCameras, device: &burn_cubecl::CubeDevice) -> CubeTensor {
-    let mut data = Vec::with_capacity(cameras.0.len() * VIEW);
-    for camera in cameras.0.iter() {
-        let w2c = camera.w2c();
-        for row in 0..3 {
-            data.extend([w2c.x_axis[row], w2c.y_axis[row], w2c.z_axis[row]]);
-        }
-        data.extend(w2c.w_axis.truncate().to_array());
-        let k = camera.intrinsics;
-        data.extend([k.fx, k.fy, k.cx, k.cy]);
-    }
-    let shape = [cameras.0.len(), VIEW];
-    <CubeBackend as burn::backend::ops::FloatTensorOps<CubeBackend>>::float_from_data(
-        TensorData::new(data, shape),
-        device,
-    )
-}
-
 impl MeshBackend for CubeBackend {
     fn mesh_rasterize(
         vertices: CubeTensor,
@@ -263,7 +242,7 @@ impl MeshBackend for CubeBackend {
                 TensorData::new(flat, [nf, 3]),
                 &device,
             );
-        let views = views_tensor(&cameras, &device);
+        let views = cameras_tensor(&cameras.0, |_| Vec::new(), &device);
         let empty = |shape: Vec<usize>| {
             empty_device_dtype(
                 client.clone(),

@@ -19,8 +19,8 @@ use crate::splat::host::{
 
 /// Floats per projected Gaussian.
 pub const PROJECTED: usize = 12;
-/// Floats per camera.
-pub const VIEW: usize = 20;
+/// Floats per camera: the pinhole of `crate::launch::cameras_tensor`, then 4 ratio limits.
+pub const VIEW: usize = crate::launch::PINHOLE + 4;
 /// The gradient slots per Gaussian ahead of its features: `u, v, depth, conic a, b, c,
 /// opacity` (the host's `GRAD_HEAD`).
 pub const GRAD_HEAD: usize = 7;

@@ -21,17 +21,18 @@ mod kernels;
 use burn::backend::fusion::custom::TensorSpec;
 use burn::backend::tensor::{FloatTensor, IntTensor};
 use burn::backend::{Backend, ExtensionType, backend_extension};
-use burn::tensor::{DType, Shape, TensorData};
+use burn::tensor::{DType, Shape};
 use burn_cubecl::ops::numeric::{empty_device_dtype, zeros_client};
 use burn_cubecl::tensor::CubeTensor;
 use burn_cubecl::{CubeBackend, CubeDevice};
 use cubecl::prelude::*;
 
-use crate::launch::{elementwise, prepared, require_float_atomics};
+use crate::launch::{cameras_tensor, elementwise, prepared, require_float_atomics};
 
-use self::kernels::{BLOCK, GRAD_HEAD, PROJECTED, VIEW};
+use self::kernels::{BLOCK, GRAD_HEAD, PROJECTED};
 use super::host::{TILE_SIZE, view::View};
 use super::op::{SplatCameras, SplatInputs, SplatInputsMetadata};
+use prism_data::Camera;
 
 /// What the reverse pass reads from the forward pass, as device tensors.
 #[derive(ExtensionType, Clone, Debug)]
@@ -128,25 +129,14 @@ fn prepared_inputs(inputs: SplatInputs<CubeBackend>) -> SplatInputs<CubeBackend>
     }
 }
 
-/// The cameras as a `[B, VIEW]` device tensor (an upload, never a read).
+/// The cameras as a `[B, VIEW]` device tensor: the pinhole, then the `x/z` and `y/z` limits of
+/// the projection Jacobian (`View::ratio_limits`).
 fn views_tensor(cameras: &SplatCameras, device: &CubeDevice) -> CubeTensor {
-    let mut data = Vec::with_capacity(cameras.0.len() * VIEW);
-    for camera in cameras.0.iter() {
-        let view = View::new(camera);
-        let r = view.rotation;
-        for row in 0..3 {
-            data.extend([r.x_axis[row], r.y_axis[row], r.z_axis[row]]);
-        }
-        data.extend(view.translation.to_array());
-        data.extend([view.fx, view.fy, view.cx, view.cy]);
-        let lim = view.ratio_limits();
-        data.extend([lim[0][0], lim[0][1], lim[1][0], lim[1][1]]);
-    }
-    let shape = [cameras.0.len(), VIEW];
-    <CubeBackend as burn::backend::ops::FloatTensorOps<CubeBackend>>::float_from_data(
-        TensorData::new(data, shape),
-        device,
-    )
+    let limits = |camera: &Camera| {
+        let lim = View::new(camera).ratio_limits();
+        vec![lim[0][0], lim[0][1], lim[1][0], lim[1][1]]
+    };
+    cameras_tensor(&cameras.0, limits, device)
 }
 
 /// The tile grid launch: one cube of 16x16 units per tile and camera.
