@@ -62,7 +62,7 @@ pub trait SplatBackend: Backend {
 /// How a backend runs the rasterizer under autodiff: the forward pass together with the tape
 /// its reverse pass reads, and that reverse pass. The CPU backends keep the tape in host memory
 /// (`host`); the cube backend keeps it in device tensors (`device`).
-pub trait SplatTaped: Backend {
+pub trait SplatTaped: SplatBackend {
     /// What the reverse pass needs from the forward pass.
     type Tape: Clone + Send + Sync + std::fmt::Debug + 'static;
 
@@ -307,7 +307,7 @@ impl<B: SplatTaped, C: CheckpointStrategy> SplatBackend for Autodiff<B, C> {
                 let (output, tape) = B::forward_taped(inner, &cameras);
                 prep.finish((tape, cameras), output)
             }
-            OpsKind::UnTracked(prep) => prep.finish(B::forward_taped(inner, &cameras).0),
+            OpsKind::UnTracked(prep) => prep.finish(B::splat_rasterize(inner, cameras)),
         }
     }
 }

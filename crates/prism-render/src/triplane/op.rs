@@ -77,7 +77,7 @@ fn forward_on_host<B: Backend>(
 
 /// How a backend samples under autodiff: the forward pass with the tape its reverse pass
 /// reads, and that reverse pass (host memory on the CPU backends, device tensors on the GPU).
-pub trait TriplaneTaped: Backend {
+pub trait TriplaneTaped: TriplaneBackend {
     /// What the reverse pass needs from the forward pass.
     type Tape: Clone + Send + Sync + std::fmt::Debug + 'static;
 
@@ -219,7 +219,7 @@ impl<B: TriplaneTaped, C: CheckpointStrategy> TriplaneBackend for Autodiff<B, C>
                 let (output, tape) = B::forward_taped(planes, coords);
                 prep.finish(tape, output)
             }
-            OpsKind::UnTracked(prep) => prep.finish(B::forward_taped(planes, coords).0),
+            OpsKind::UnTracked(prep) => prep.finish(B::triplane_sample(planes, coords)),
         }
     }
 }
