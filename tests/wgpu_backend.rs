@@ -20,8 +20,8 @@ use prism_data::BackendKind;
 use prism_data::dataset::{
     DatasetReader, PrismBatch, PrismBatcher, Sample, SampleDataset, SplitKind, TargetSelection,
 };
+use prism_data::reads::geometry_host_reads;
 use prism_model::{Prism, protocol_views};
-use prism_render::transfer::geometry_host_reads;
 use prism_train::{StepLoss, TeacherLoss, TrainingConfig, ensure_synthetic_dataset};
 
 /// Held by both tests: the backends seed one process-wide random generator, so a test that

@@ -18,7 +18,7 @@ pub mod mesh;
 pub mod splat;
 #[cfg(any(feature = "wgpu", feature = "cuda"))]
 mod tiles;
-pub mod transfer;
+mod transfer;
 pub mod triplane;
 
 pub use error::RenderError;

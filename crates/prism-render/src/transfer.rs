@@ -10,7 +10,7 @@ use burn::backend::Backend;
 use burn::backend::tensor::FloatTensor;
 use burn::tensor::{TensorData, read_sync};
 
-pub use prism_data::reads::{count_geometry_read, geometry_host_reads};
+use prism_data::reads::count_geometry_read;
 
 /// Reads a primitive to host memory as `f32`, counting the read.
 ///

@@ -9,8 +9,8 @@ mod common;
 use burn::tensor::Device;
 use common::{Scene, device, host, orbit_camera, serial, tracked, wgpu};
 use prism_data::Camera;
+use prism_data::reads::geometry_host_reads;
 use prism_render::splat::{Gaussians, render};
-use prism_render::transfer::geometry_host_reads;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

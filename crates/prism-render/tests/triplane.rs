@@ -116,10 +116,10 @@ fn the_device_kernels_match_finite_differences_and_the_host() {
         let grads = (out.clone() * wt).sum().backward();
         [out, p.grad(&grads).unwrap(), x.grad(&grads).unwrap()]
     };
-    let reads = prism_render::transfer::geometry_host_reads();
+    let reads = prism_data::reads::geometry_host_reads();
     let got = run(&gpu);
     assert_eq!(
-        prism_render::transfer::geometry_host_reads(),
+        prism_data::reads::geometry_host_reads(),
         reads,
         "triplane sampling read from the device"
     );
