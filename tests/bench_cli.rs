@@ -31,7 +31,7 @@ fn tiny_config(dir: &std::path::Path) -> PathBuf {
 fn prism(args: &[&str], cache: &std::path::Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_prism"))
         .args(args)
-        .env(prism_train::CACHE_ENV, cache)
+        .env(prism_synth::CACHE_ENV, cache)
         .output()
         .expect("run prism")
 }

@@ -31,10 +31,10 @@ fn synth_writes_a_model_that_loads_and_info_describes_it() {
     assert!(String::from_utf8_lossy(&run.stdout).contains("procedural:2"));
     // Only the model file: the temporary file was renamed.
     assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
-    let model = prism_data::BodyModel::load_npz(&out).unwrap();
+    let model = prism_body::BodyModel::load_npz(&out).unwrap();
     assert_eq!(
         model.into_arrays(),
-        prism_data::BodyModel::procedural(2).into_arrays()
+        prism_body::BodyModel::procedural(2).into_arrays()
     );
     let info = prism(&["info", out.to_str().unwrap()]);
     assert!(info.status.success());

@@ -59,7 +59,7 @@ fn synth_then_check_then_rerun_then_corrupt() {
     )
     .unwrap();
     assert_eq!(cams.len(), 105);
-    let body = prism_data::BodyParams::load(data.join("subject_0001/body.json")).unwrap();
+    let body = prism_body::BodyParams::load(data.join("subject_0001/body.json")).unwrap();
     assert!(body.scale > 0.0);
     let subject: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(data.join("subject_0001/subject.json")).unwrap(),

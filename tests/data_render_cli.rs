@@ -4,8 +4,8 @@
 use std::path::Path;
 use std::process::{Command, Output};
 
-use prism_data::BodyParams;
-use prism_data::dataset::DatasetReader;
+use prism_body::BodyParams;
+use prism_data::DatasetReader;
 
 fn prism(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_prism"))

@@ -5,11 +5,11 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use prism_data::BackendKind;
+use prism_core::BackendKind;
 use prism_model::AttentionKind;
+use prism_synth::ensure_synthetic_dataset;
 use prism_train::{
-    Checkpoint, TrainingConfig, configs_dir, ensure_synthetic_dataset, kinds_letters, load_model,
-    read_metrics,
+    Checkpoint, TrainingConfig, configs_dir, kinds_letters, load_model, read_metrics,
 };
 
 fn scratch(test: &str) -> PathBuf {
@@ -44,7 +44,7 @@ fn prism(cache: &Path, args: &[&str]) -> Output {
     let out = Command::new(env!("CARGO_BIN_EXE_prism"))
         .args(args)
         .args(["--backend", "ndarray", "--quiet"])
-        .env(prism_train::CACHE_ENV, cache)
+        .env(prism_synth::CACHE_ENV, cache)
         .env_remove("PRISM_LPIPS_WEIGHTS")
         .output()
         .unwrap();
@@ -85,7 +85,7 @@ fn distilled_student_stays_near_its_teacher_and_beats_the_fully_linear_ablation(
     let dir = scratch("e2e");
     let cache = dir.join("cache");
     // SAFETY: set before any child process is spawned or the variable is read.
-    unsafe { std::env::set_var(prism_train::CACHE_ENV, &cache) };
+    unsafe { std::env::set_var(prism_synth::CACHE_ENV, &cache) };
     let config = tiny_config();
     ensure_synthetic_dataset(&config.data, false).unwrap();
     let config_path = dir.join("tiny.toml");

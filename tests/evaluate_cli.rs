@@ -40,9 +40,10 @@ fn trained() -> &'static (PathBuf, PathBuf) {
     RUN.get_or_init(|| {
         let cache = scratch("cache");
         // SAFETY: set once, before any child process is spawned or the variable is read.
-        unsafe { std::env::set_var(prism_train::CACHE_ENV, &cache) };
+        unsafe { std::env::set_var(prism_synth::CACHE_ENV, &cache) };
         let run = scratch("run");
-        let options = RunOptions::new(&run, prism_data::BackendKind::Ndarray);
+        let data = prism_synth::ensure_synthetic_dataset(&tiny_config().data, false).unwrap();
+        let options = RunOptions::new(&run, data, prism_core::BackendKind::Ndarray);
         train(
             &tiny_config(),
             &TeacherTask {
@@ -60,7 +61,7 @@ fn prism(args: &[&str]) -> Command {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_prism"));
     cmd.args(args)
         .args(["--backend", "ndarray", "--quiet"])
-        .env(prism_train::CACHE_ENV, cache)
+        .env(prism_synth::CACHE_ENV, cache)
         .env_remove("PRISM_LPIPS_WEIGHTS");
     cmd
 }
@@ -497,7 +498,11 @@ fn another_config_and_a_missing_3dgs_head_are_one_clear_line() {
         &TeacherTask {
             lpips_weights: None,
         },
-        &prism_train::RunOptions::new(&no_gs_run, prism_data::BackendKind::Ndarray),
+        &RunOptions::new(
+            &no_gs_run,
+            prism_synth::ensure_synthetic_dataset(&no_gs.data, false).unwrap(),
+            prism_core::BackendKind::Ndarray,
+        ),
     )
     .unwrap();
     let ply = dir.join("person.ply");

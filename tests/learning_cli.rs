@@ -11,9 +11,11 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use image::RgbImage;
-use prism_data::people::{self, PeopleConfig};
-use prism_data::synth::{BODY_MODEL_SEED, subject_name, subject_seed};
-use prism_data::{BodyModel, Intrinsics, RenderOptions, ViewingProtocol, render};
+use prism_body::BodyModel;
+use prism_core::{Intrinsics, ViewingProtocol};
+use prism_synth::people::{self, PeopleConfig};
+use prism_synth::synth::{BODY_MODEL_SEED, subject_name, subject_seed};
+use prism_synth::{RenderOptions, render};
 use prism_train::infer::{Sweep, sweep_views, view_file_name};
 use prism_train::{TrainingConfig, configs_dir, read_metrics};
 
@@ -28,7 +30,7 @@ fn scratch(name: &str) -> PathBuf {
 fn prism(cache: &Path, args: &[&str]) -> String {
     let out = Command::new(env!("CARGO_BIN_EXE_prism"))
         .args(args)
-        .env(prism_train::CACHE_ENV, cache)
+        .env(prism_synth::CACHE_ENV, cache)
         .env_remove("PRISM_LPIPS_WEIGHTS")
         .output()
         .unwrap();
@@ -51,7 +53,7 @@ fn ground_truth(config: &TrainingConfig, index: usize, yaw: f32) -> RgbImage {
         people::generate_with(&model, seed, &PeopleConfig::for_resolution(data.resolution));
     let protocol = ViewingProtocol::default();
     let person = person.placed(&protocol.placement(seed));
-    let view = prism_data::ViewAngles {
+    let view = prism_core::ViewAngles {
         index: 0,
         yaw_deg: yaw,
         pitch_deg: 0.0,

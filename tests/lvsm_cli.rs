@@ -8,7 +8,7 @@ use std::process::{Command, Output};
 
 use burn::module::{Module, ModuleVisitor, Param, ParamId};
 use burn::tensor::Tensor;
-use prism_data::BackendKind;
+use prism_core::BackendKind;
 use prism_model::gaussian_head::{GsColour, GsDepth};
 use prism_model::head::NvsOutput;
 use prism_train::{TrainingConfig, configs_dir, heads_group_with, latest_checkpoint, load_model};
@@ -59,7 +59,7 @@ fn config(dir: &Path) -> PathBuf {
 fn prism(cache: &Path, args: &[&str]) -> Output {
     let out = Command::new(env!("CARGO_BIN_EXE_prism"))
         .args(args)
-        .env(prism_train::CACHE_ENV, cache)
+        .env(prism_synth::CACHE_ENV, cache)
         .output()
         .unwrap();
     assert!(

@@ -26,7 +26,7 @@ fn quickstart_fast_runs_end_to_end() {
         ])
         .arg("--out")
         .arg(&out_dir)
-        .env(prism_train::CACHE_ENV, root.join("cache"))
+        .env(prism_synth::CACHE_ENV, root.join("cache"))
         .env_remove("PRISM_LPIPS_WEIGHTS")
         .output()
         .unwrap();

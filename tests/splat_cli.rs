@@ -3,8 +3,8 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use prism_data::camera::mat4_to_rows;
-use prism_data::{Camera, Intrinsics};
+use prism_core::camera::mat4_to_rows;
+use prism_core::{Camera, Intrinsics};
 use prism_render::splat::GaussianCloud;
 
 fn temp_dir(name: &str) -> PathBuf {

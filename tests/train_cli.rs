@@ -8,10 +8,10 @@ use std::process::{Command, Output, Stdio};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
-use prism_data::BackendKind;
+use prism_core::BackendKind;
+use prism_synth::ensure_synthetic_dataset;
 use prism_train::{
-    Checkpoint, TrainingConfig, configs_dir, ensure_synthetic_dataset, list_checkpoints,
-    parameter_values, read_metrics,
+    Checkpoint, TrainingConfig, configs_dir, list_checkpoints, parameter_values, read_metrics,
 };
 
 /// A scratch folder for one test, removed first.
@@ -30,7 +30,7 @@ fn cache() -> PathBuf {
         .get_or_init(|| {
             let dir = scratch("cache");
             // SAFETY: set once, before any child process is spawned or the variable is read.
-            unsafe { std::env::set_var(prism_train::CACHE_ENV, &dir) };
+            unsafe { std::env::set_var(prism_synth::CACHE_ENV, &dir) };
             ensure_synthetic_dataset(&tiny_config(40, 5).data, false).unwrap();
             dir
         })
@@ -69,7 +69,7 @@ fn prism(config: &Path, out: &Path, extra: &[&str]) -> Command {
         .arg(out)
         .args(["--backend", "ndarray", "--quiet"])
         .args(extra)
-        .env(prism_train::CACHE_ENV, cache())
+        .env(prism_synth::CACHE_ENV, cache())
         .env_remove("PRISM_LPIPS_WEIGHTS");
     cmd
 }

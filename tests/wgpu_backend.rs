@@ -16,13 +16,14 @@ use std::sync::{Mutex, MutexGuard};
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::{AdamWConfig, GradientsParams};
 use burn::tensor::{Device, Tensor};
-use prism_data::BackendKind;
-use prism_data::dataset::{
+use prism_core::BackendKind;
+use prism_core::reads::geometry_host_reads;
+use prism_data::{
     DatasetReader, PrismBatch, PrismBatcher, Sample, SampleDataset, SplitKind, TargetSelection,
 };
-use prism_data::reads::geometry_host_reads;
 use prism_model::{Prism, protocol_views};
-use prism_train::{StepLoss, TeacherLoss, TrainingConfig, ensure_synthetic_dataset};
+use prism_synth::ensure_synthetic_dataset;
+use prism_train::{StepLoss, TeacherLoss, TrainingConfig};
 
 /// Held by both tests: the backends seed one process-wide random generator, so a test that
 /// initialises its model while the other seeds or draws would get other weights and inputs
@@ -121,7 +122,7 @@ fn tiny_forward_on_wgpu_matches_flex() {
         &flex,
     );
     let run = |model: &Prism, device: &Device| {
-        let rays = |cams| prism_data::rays::plucker_rays(cams, device);
+        let rays = |cams| prism_core::rays::plucker_rays(cams, device);
         let out = model.forward_views(
             image.clone().to_device(device),
             rays(&views.source),

@@ -5,17 +5,17 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use super::args::DataArgs;
 use anyhow::Context;
 use clap::{Args, Subcommand};
-use prism_data::BackendKind;
-use prism_data::dataset::DatasetReader;
-use prism_data::reads::{geometry_host_reads, host_reads};
+use prism_core::BackendKind;
+use prism_core::reads::{geometry_host_reads, host_reads};
+use prism_data::DatasetReader;
 use prism_model::{
     AttentionKind, BenchOptions, BenchRow, MemoryProbe, Precision, bench_forward, load_config,
 };
 use prism_train::{
-    RunOptions, TeacherTask, TrainingConfig, Validator, ensure_synthetic_dataset, load_model,
-    read_metrics, train,
+    RunOptions, TeacherTask, TrainingConfig, Validator, load_model, read_metrics, train,
 };
 
 /// Benchmarks; results are printed as a table and optionally written as JSON.
@@ -65,10 +65,9 @@ struct TableArgs {
     /// Training steps to run for the step time (median after 2 warm-up steps); 0 skips it.
     #[arg(long, default_value_t = 6)]
     train_steps: usize,
-    /// Dataset for the training step [default: the config's synthetic dataset, synthesised
-    /// into the cache on first use].
-    #[arg(long, value_name = "DIR")]
-    data: Option<PathBuf>,
+    /// The dataset of the training step.
+    #[command(flatten)]
+    data: DataArgs,
     /// Also write `{"rows": [{"model", "res", "tokens", "ms", "fps", "peak_mem_bytes",
     /// "host_reads", "geometry_host_reads"}]}` to
     /// this file (the training step is the row `train_step`, `fps` its steps per second).
@@ -205,10 +204,8 @@ fn write_json(path: &Path, rows: &[BenchRow]) -> anyhow::Result<()> {
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
-    let tmp = path.with_extension("json.tmp");
-    std::fs::write(&tmp, text + "\n").with_context(|| format!("cannot write {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))?;
-    Ok(())
+    prism_core::files::write_bytes(path, (text + "\n").as_bytes())
+        .with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// Prints one row of the table `model res tokens ms/frame fps peak_mem reads geometry` (the
@@ -324,13 +321,9 @@ impl TableArgs {
         config.train.validate_every = 0;
         config.train.validation_views = 1;
         config.train.checkpoint_every = steps;
-        let data = match &self.data {
-            Some(dir) => dir.clone(),
-            None => ensure_synthetic_dataset(&config.data, true)?,
-        };
+        let data = self.data.resolve(&config.data, true)?;
         let out = std::env::temp_dir().join(format!("prism-bench-train-{}", std::process::id()));
-        let mut options = RunOptions::new(&out, self.backend);
-        options.data = Some(data);
+        let options = RunOptions::new(&out, data, self.backend);
         let probe = MemoryProbe::start(&self.backend.device()?);
         let reads = (host_reads(), geometry_host_reads());
         let result = train(&config, &TeacherTask::default(), &options);
@@ -376,10 +369,8 @@ struct PrecisionBenchArgs {
     /// Checkpoint (or run folder: its latest checkpoint) to evaluate.
     #[arg(long, value_name = "PATH")]
     checkpoint: PathBuf,
-    /// Dataset to validate on (its held-out subjects) [default: the checkpoint config's
-    /// synthetic dataset].
-    #[arg(long, value_name = "DIR")]
-    data: Option<PathBuf>,
+    #[command(flatten)]
+    data: DataArgs,
     /// Target views per held-out subject (evenly spread over views 1..=100).
     #[arg(long, default_value_t = 8)]
     views: usize,
@@ -396,10 +387,7 @@ impl PrecisionBenchArgs {
         check_precision(self.precision, self.backend)?;
         let device = self.backend.device()?;
         let (model, config) = load_model(&self.checkpoint, &device)?;
-        let data = match &self.data {
-            Some(dir) => dir.clone(),
-            None => ensure_synthetic_dataset(&config.data, true)?,
-        };
+        let data = self.data.resolve(&config.data, true)?;
         let reader = DatasetReader::open(&data)?;
         let validator = Validator::new(
             &reader,

@@ -6,10 +6,11 @@ use std::time::Instant;
 use burn::tensor::{Device, Tensor, TensorData};
 
 use clap::{Args, Subcommand};
-use prism_data::body::procedural;
-use prism_data::body::{BodyLayer, NUM_BETAS, NUM_EXPRESSION, NUM_JOINTS};
-use prism_data::people::{PeopleConfig, generate_with};
-use prism_data::{BackendKind, BodyModel, BodyParams};
+use prism_body::procedural;
+use prism_body::{BodyLayer, NUM_BETAS, NUM_EXPRESSION, NUM_JOINTS};
+use prism_body::{BodyModel, BodyParams};
+use prism_core::BackendKind;
+use prism_synth::people::{PeopleConfig, generate_with};
 
 /// Body model commands.
 #[derive(Subcommand, Debug)]

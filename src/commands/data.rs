@@ -6,11 +6,12 @@ use anyhow::bail;
 use clap::{Args, Subcommand};
 
 use indicatif::{ProgressBar, ProgressStyle};
-use prism_data::dataset::check_dataset;
-use prism_data::protocol::NUM_VIEWS;
-use prism_data::scan_dataset::{ScanDatasetOptions, ScanEvent, render_scans};
-use prism_data::synth::{SynthOptions, synth_dataset};
-use prism_data::{Facing, UpAxis};
+use prism_core::protocol::NUM_VIEWS;
+use prism_data::SynthOptions;
+use prism_data::check_dataset;
+use prism_synth::scan_dataset::{ScanDatasetOptions, ScanEvent, render_scans};
+use prism_synth::synth::synth_dataset;
+use prism_synth::{Facing, UpAxis};
 
 /// Dataset commands.
 #[derive(Subcommand, Debug)]
@@ -184,15 +185,15 @@ fn render(args: RenderArgs) -> anyhow::Result<()> {
             &|| bar.inc(1),
             &|event| match event {
                 ScanEvent::Planned { to_render, .. } => {
-                    bar.set_length((to_render * NUM_VIEWS) as u64)
+                    bar.set_length((to_render * NUM_VIEWS) as u64);
                 }
                 ScanEvent::Skipped(_) => {}
                 ScanEvent::Rendered(name) => bar.set_message(name.to_string()),
                 ScanEvent::Warning { subject, message } => {
-                    bar.suspend(|| eprintln!("warning: {subject}: {message}"))
+                    bar.suspend(|| eprintln!("warning: {subject}: {message}"));
                 }
                 ScanEvent::Failed { subject, message } => {
-                    bar.suspend(|| eprintln!("error: {subject}: {message} (skipped)"))
+                    bar.suspend(|| eprintln!("error: {subject}: {message} (skipped)"));
                 }
             },
         )?;

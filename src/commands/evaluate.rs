@@ -5,7 +5,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use clap::Args;
-use prism_data::BackendKind;
+
+use super::args::{DataArgs, JobArgs};
 use prism_losses::{Lpips, score_paths};
 use prism_train::{EvaluateOptions, evaluate_checkpoint};
 
@@ -27,9 +28,9 @@ pub struct EvaluateArgs {
     /// A checkpoint folder, or a run folder (its latest checkpoint).
     #[arg(long, value_name = "RUN_OR_CKPT", conflicts_with_all = ["pred", "gt"])]
     checkpoint: Option<PathBuf>,
-    /// Dataset folder (see FORMAT.md) [default: the checkpoint config's synthetic dataset].
-    #[arg(long, value_name = "DIR", requires = "checkpoint")]
-    data: Option<PathBuf>,
+    /// With --checkpoint: the dataset [default: the checkpoint config's synthetic dataset].
+    #[command(flatten)]
+    data: DataArgs,
     /// Predicted image, or folder of predicted images (needs --gt).
     #[arg(long, value_name = "PATH", requires = "gt")]
     pred: Option<PathBuf>,
@@ -52,15 +53,8 @@ pub struct EvaluateArgs {
     /// (source, target) pairs per forward pass.
     #[arg(long, default_value_t = 8, value_name = "N", value_parser = clap::value_parser!(u16).range(1..))]
     batch: u16,
-    /// Backend: ndarray, flex or wgpu.
-    #[arg(long, default_value = "flex")]
-    backend: BackendKind,
-    /// LPIPS weight file [default: $PRISM_LPIPS_WEIGHTS, then data/lpips_alex.safetensors].
-    #[arg(long, value_name = "FILE")]
-    lpips_weights: Option<PathBuf>,
-    /// No progress bar.
-    #[arg(long)]
-    quiet: bool,
+    #[command(flatten)]
+    job: JobArgs,
 }
 
 impl EvaluateArgs {
@@ -68,6 +62,9 @@ impl EvaluateArgs {
     pub fn run(self) -> anyhow::Result<()> {
         match (&self.checkpoint, &self.pred, &self.gt) {
             (Some(checkpoint), None, None) => self.run_checkpoint(checkpoint),
+            (None, Some(_), Some(_)) if self.data.data.is_some() => {
+                bail!("--data goes with --checkpoint; --pred and --gt are scored as they are")
+            }
             (None, Some(pred), Some(gt)) => self.run_images(pred, gt),
             _ => bail!("give --checkpoint (with --data), or --pred and --gt"),
         }
@@ -81,16 +78,18 @@ impl EvaluateArgs {
         let options = EvaluateOptions {
             views: usize::from(self.views),
             batch: usize::from(self.batch),
-            progress: !self.quiet,
+            progress: !self.job.quiet,
             save_predictions: self.save_predictions.clone(),
             ..EvaluateOptions::default()
         };
         let (e, files) = evaluate_checkpoint(
             checkpoint,
-            self.data.as_deref(),
+            &self
+                .data
+                .resolve_for_checkpoint(checkpoint, !self.job.quiet)?,
             &out,
-            self.backend,
-            self.lpips_weights.as_deref(),
+            self.job.backend,
+            self.job.lpips_weights.as_deref(),
             &options,
         )
         .with_context(|| format!("evaluating {}", checkpoint.display()))?;
@@ -105,7 +104,7 @@ impl EvaluateArgs {
             e.ssim,
             e.lpips,
             e.fps,
-            self.backend
+            self.job.backend
         );
         if let Some(gs) = &e.gs {
             println!(
@@ -136,8 +135,8 @@ impl EvaluateArgs {
     }
 
     fn run_images(&self, pred: &Path, gt: &Path) -> anyhow::Result<()> {
-        let device = self.backend.device()?;
-        let lpips = Lpips::load_default(self.lpips_weights.as_deref(), &device)?;
+        let device = self.job.backend.device()?;
+        let lpips = Lpips::load_default(self.job.lpips_weights.as_deref(), &device)?;
         let scores = score_paths(pred, gt, &lpips, &device)?;
         if let Some(json) = &self.json {
             write_atomic(json, &(scores.to_json() + "\n"))?;
@@ -147,11 +146,8 @@ impl EvaluateArgs {
     }
 }
 
-/// Writes `text` to `path` through a temporary file and a rename.
+/// Writes `text` to `path` atomically.
 fn write_atomic(path: &Path, text: &str) -> anyhow::Result<()> {
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".partial");
-    let tmp = PathBuf::from(tmp);
-    std::fs::write(&tmp, text).with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))
+    prism_core::files::write_bytes(path, text.as_bytes())
+        .with_context(|| format!("writing {}", path.display()))
 }

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::Args;
-use prism_data::BackendKind;
+use prism_core::BackendKind;
 use prism_train::{Framing, InferOptions, Sweep, infer};
 
 /// Synthesise novel views of a person from one photo.

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use prism_data::BackendKind;
+use prism_core::BackendKind;
 use prism_losses::{Lpips, score_paths};
 
 /// Score images against ground truth: PSNR (dB), SSIM and LPIPS (v0.1, AlexNet).

@@ -4,7 +4,8 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::Args;
-use prism_data::BackendKind;
+use prism_core::BackendKind;
+use prism_synth::ensure_synthetic_dataset;
 use prism_train::{
     QuickstartOptions, QuickstartPlan, distill_student, quickstart, quickstart_table,
 };
@@ -73,8 +74,16 @@ impl QuickstartArgs {
                 "runs/quickstart"
             })
         });
+        let data_start = std::time::Instant::now();
+        let data = ensure_synthetic_dataset(&plan.config.data, !self.quiet)?;
+        eprintln!(
+            "quickstart: dataset {} ready in {:.0} s",
+            data.display(),
+            data_start.elapsed().as_secs_f64()
+        );
         let options = QuickstartOptions {
             out: out.clone(),
+            data,
             backend: self.backend,
             lpips_weights: self.lpips_weights.clone(),
             progress: !self.quiet,

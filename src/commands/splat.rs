@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::{Args, Subcommand};
-use prism_data::BackendKind;
+use prism_core::BackendKind;
 use prism_render::splat::{GaussianCloud, parse_background, read_camera, render_cloud, save_png};
 
 /// Work with 3D Gaussian splats (standard 3DGS PLY files).

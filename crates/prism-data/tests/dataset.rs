@@ -6,11 +6,12 @@ use std::path::Path;
 use burn::data::dataset::Dataset;
 use glam::Vec3;
 use image::{Luma, Rgb, Rgb32FImage};
-use prism_data::dataset::{
-    CameraRecord, DatasetMeta, DatasetReader, DatasetWriter, Mask, PointMap, PrismBatcher,
-    SampleDataset, Split, SplitKind, SubjectRecord, TargetSelection, check_dataset,
+use prism_core::CameraRecord;
+use prism_core::{BackendKind, Camera, Intrinsics, ViewingProtocol};
+use prism_data::{
+    DatasetMeta, DatasetReader, DatasetWriter, Mask, PointMap, PrismBatcher, SampleDataset, Split,
+    SplitKind, SubjectRecord, TargetSelection, check_dataset,
 };
-use prism_data::{BackendKind, Camera, Intrinsics, ViewingProtocol};
 
 const RES: u32 = 16;
 const CENTRE: Vec3 = Vec3::new(0.0, 0.9, 0.0);
@@ -76,7 +77,7 @@ fn write_sphere_dataset(root: &Path, subjects: &[&str]) {
             mesh_to_world: glam::Mat4::IDENTITY.to_cols_array_2d(),
             height: 1.0,
         };
-        let mut body = prism_data::BodyParams::rest("procedural:0");
+        let mut body = prism_body::BodyParams::rest("procedural:0");
         body.betas[0] = 0.5 + s as f32;
         w.finish(&records, &points.unwrap(), &record, Some(&body))
             .unwrap();

@@ -86,7 +86,7 @@ impl<'a> View<'a> {
 
 /// `dst (row-major lhs.rows x rhs.cols) = [dst +] scale * lhs rhs`, single-threaded (the
 /// callers parallelise over heads and blocks).
-fn matmul(dst: &mut [f32], accumulate: bool, lhs: View, rhs: View, scale: f32) {
+fn matmul(dst: &mut [f32], accumulate: bool, lhs: View<'_>, rhs: View<'_>, scale: f32) {
     assert_eq!(lhs.cols, rhs.rows, "matmul: inner sizes differ");
     assert_eq!(dst.len(), lhs.rows * rhs.cols, "matmul: output size");
     lhs.check();

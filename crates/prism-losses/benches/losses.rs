@@ -6,7 +6,7 @@
 use std::time::Instant;
 
 use burn::tensor::{Device, Distribution, Tensor};
-use prism_data::BackendKind;
+use prism_core::BackendKind;
 use prism_losses::{Lpips, point_loss, psnr, ssim};
 
 fn median_ms(runs: usize, mut f: impl FnMut()) -> f64 {

@@ -229,7 +229,7 @@ fn unit_normalise(x: Tensor<4>) -> Tensor<4> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use prism_data::BackendKind;
+    use prism_core::BackendKind;
 
     #[test]
     fn unit_normalisation_has_a_finite_gradient_at_zero_features() {

@@ -182,7 +182,7 @@ impl LossTerms {
             .map(|(n, t)| (*n, t))
             .chain([("total", &self.total)])
             .map(|(n, t)| {
-                prism_data::reads::count_host_read();
+                prism_core::reads::count_host_read();
                 (n, t.clone().into_scalar::<f64>())
             })
             .collect()

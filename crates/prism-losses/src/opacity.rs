@@ -32,7 +32,7 @@ pub fn mask_rows(mask: Tensor<4>) -> Tensor<3> {
 mod tests {
     use super::*;
     use burn::tensor::TensorData;
-    use prism_data::BackendKind;
+    use prism_core::BackendKind;
 
     #[test]
     fn matches_the_cross_entropy_formula_and_its_gradient() {

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use burn::tensor::Device;
-use prism_data::BackendKind;
+use prism_core::BackendKind;
 use prism_losses::{Lpips, load_image, score_files, ssim};
 
 fn reference_dir() -> PathBuf {

@@ -13,8 +13,8 @@
 use std::time::Instant;
 
 use burn::tensor::{Device, Distribution, Tensor};
-use prism_data::BackendKind;
-use prism_data::rays::plucker_rays;
+use prism_core::BackendKind;
+use prism_core::rays::plucker_rays;
 use prism_model::{
     Prism, PrismConfig, PrismOutput, SourcePixels, Views, load_config, protocol_views,
 };

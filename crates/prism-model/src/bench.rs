@@ -8,9 +8,9 @@ use std::time::Instant;
 
 use burn::tensor::{Device, Distribution, Tensor};
 use glam::Vec3;
-use prism_data::rays::plucker_rays;
-use prism_data::reads::{geometry_host_reads, host_reads};
-use prism_data::{Camera, Intrinsics};
+use prism_core::rays::plucker_rays;
+use prism_core::reads::{geometry_host_reads, host_reads};
+use prism_core::{Camera, Intrinsics};
 use serde::Serialize;
 
 use crate::memory::MemoryProbe;
@@ -51,7 +51,7 @@ pub struct BenchRow {
     /// backends (Linux); `None` where neither is available.
     pub peak_mem_bytes: Option<u64>,
     /// Tensors read back to the host per frame (per step for the training step) at prism's
-    /// transfer points ([`prism_data::reads`]): the frame itself, loss values for the log, the
+    /// transfer points ([`prism_core::reads`]): the frame itself, loss values for the log, the
     /// gradient norm, and the geometry operations' reads.
     pub host_reads: f64,
     /// The part of `host_reads` made by the geometry operations: 0 where they run on the
@@ -92,7 +92,7 @@ pub fn bench_forward(
             &[],
         );
         // Waits for the result: reading it back forces lazy backends to execute.
-        prism_data::reads::count_host_read();
+        prism_core::reads::count_host_read();
         let _ = out.image.into_data();
         let _ = device.sync();
     };

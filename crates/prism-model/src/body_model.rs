@@ -6,8 +6,8 @@ use std::collections::HashMap;
 use std::path::Path;
 use std::sync::{Arc, Mutex, OnceLock};
 
-use prism_data::BodyModel;
-use prism_data::body::procedural::parse_model_name;
+use prism_body::BodyModel;
+use prism_body::procedural::parse_model_name;
 
 use crate::error::ModelError;
 

@@ -100,7 +100,7 @@ impl<'de> Deserialize<'de> for AttentionPattern {
         struct PatternVisitor;
         impl<'de> Visitor<'de> for PatternVisitor {
             type Value = AttentionPattern;
-            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+            fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
                 f.write_str(
                     "\"full\", \"linear\", a pattern of F/L letters, or a list of \"full\" / \
                      \"linear\"",

@@ -79,7 +79,7 @@ impl<'de> Deserialize<'de> for DistillLayers {
         struct LayersVisitor;
         impl<'de> Visitor<'de> for LayersVisitor {
             type Value = DistillLayers;
-            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+            fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
                 f.write_str("a count of layers or a list of block indices")
             }
             fn visit_u64<E: de::Error>(self, v: u64) -> Result<Self::Value, E> {

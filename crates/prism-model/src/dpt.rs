@@ -246,7 +246,7 @@ mod tests {
     fn per_pixel_is_the_linear_layer_on_every_pixel() {
         let device = crate::test_util::ndarray();
         device.seed(2);
-        let linear = burn::nn::LinearConfig::new(5, 3).init(&device);
+        let linear = LinearConfig::new(5, 3).init(&device);
         let x = Tensor::<4>::random([2, 5, 4, 6], burn::tensor::Distribution::Default, &device);
         let want = linear
             .forward(x.clone().permute([0, 2, 3, 1]))

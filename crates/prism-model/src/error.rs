@@ -32,7 +32,7 @@ pub enum ModelError {
     },
     /// The body model named by `model.body_model` could not be loaded.
     #[error("body model: {0}")]
-    Body(prism_data::BodyError),
+    Body(prism_body::BodyError),
     /// Exporting predicted Gaussians failed.
     #[error("{0}")]
     Render(#[from] prism_render::RenderError),

@@ -375,7 +375,7 @@ mod tests {
     use super::*;
     use crate::test_util::{ndarray, values, views};
     use burn::tensor::Distribution;
-    use prism_data::rays::plucker_rays;
+    use prism_core::rays::plucker_rays;
 
     /// The source pixels without point distances.
     fn pixels<'a>(image: &'a Tensor<4>, rays: &'a Tensor<4>) -> SourcePixels<'a> {
@@ -399,7 +399,7 @@ mod tests {
         views.background = [0.2, 0.4, 0.9];
         // Pair 1 looks away from the subject: nothing is drawn, I_gs is the background.
         let centre = views.target[1].center();
-        views.target[1] = prism_data::Camera::look_at(
+        views.target[1] = prism_core::Camera::look_at(
             centre,
             centre * 2.0,
             glam::Vec3::Y,

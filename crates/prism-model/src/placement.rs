@@ -39,7 +39,7 @@
 #[cfg(test)]
 use glam::{Mat3, Vec3};
 #[cfg(test)]
-use prism_data::Camera;
+use prism_core::Camera;
 
 /// The weak-perspective camera `(s, tx, ty)` of a body with root joint `root` (model frame)
 /// placed by `world = scale v + transl`, seen by `camera` (see the module docs).
@@ -90,7 +90,7 @@ pub(crate) fn scale_for_height(vertices: &[Vec3], height: f32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use prism_data::Intrinsics;
+    use prism_core::Intrinsics;
 
     #[test]
     fn placement_inverts_the_weak_perspective_camera() {

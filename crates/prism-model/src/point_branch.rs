@@ -186,7 +186,7 @@ mod tests {
     use super::*;
     use crate::test_util::{ndarray, values, views};
     use burn::tensor::Distribution;
-    use prism_data::rays::plucker_rays;
+    use prism_core::rays::plucker_rays;
 
     #[test]
     fn points_lie_on_their_rays_and_the_head_trains() {

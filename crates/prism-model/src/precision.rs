@@ -116,7 +116,7 @@ mod tests {
     use crate::protocol_views;
     use crate::test_util::{max_abs_diff, tiny_with, values};
     use burn::tensor::Distribution;
-    use prism_data::rays::plucker_rays;
+    use prism_core::rays::plucker_rays;
 
     /// The backbone in f16 on flex: f32 in and out, close to the f32 model (half precision
     /// keeps about 3 decimal digits), and back to f32 exactly when cast back from f32 weights.

@@ -3,7 +3,7 @@
 
 use burn::module::Module;
 use burn::tensor::{Device, Tensor};
-use prism_data::dataset::PrismBatch;
+use prism_data::PrismBatch;
 
 use crate::attention::AttentionKind;
 use crate::block::{PrismBlock, PrismBlockConfig};
@@ -848,7 +848,7 @@ mod tests {
     fn ndarray_and_flex_give_the_same_forward() {
         use AttentionKind::{Full as F, Linear as L};
         let nd = ndarray();
-        let flex = prism_data::BackendKind::Flex.device().unwrap();
+        let flex = prism_core::BackendKind::Flex.device().unwrap();
         let mut model = config("tiny").init(&nd);
         model.set_attention_kinds(&[F, L, F, L, L, F]);
         let on_flex = model.clone().to_device(&flex);

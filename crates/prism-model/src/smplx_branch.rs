@@ -32,10 +32,11 @@ use burn::nn::{Initializer, LayerNorm, LayerNormConfig, Linear, LinearConfig};
 use burn::tensor::activation::{softmax, softplus};
 use burn::tensor::{Device, Distribution, Tensor, TensorData};
 use glam::{Mat3, Vec3};
-use prism_data::body::joints::{NUM_BETAS, NUM_EXPRESSION, NUM_JOINTS};
-use prism_data::body::rodrigues;
-use prism_data::dataset::batch::BodyTensors;
-use prism_data::{BodyLayer, BodyModel, Camera};
+use prism_body::joints::{NUM_BETAS, NUM_EXPRESSION, NUM_JOINTS};
+use prism_body::rodrigues;
+use prism_body::{BodyLayer, BodyModel};
+use prism_core::Camera;
+use prism_data::batch::BodyTensors;
 use prism_kernels::gelu;
 use prism_render::mesh::{FragmentMaps, rasterize_maps};
 use prism_render::triplane::sample_triplane;
@@ -468,7 +469,8 @@ impl SmplxBranch {
 mod tests {
     use super::*;
     use crate::test_util::{ndarray, values};
-    use prism_data::{BodyParams, Intrinsics};
+    use prism_body::BodyParams;
+    use prism_core::Intrinsics;
 
     /// A posed, placed body fit as `body.json` would hold it.
     fn fit() -> BodyParams {

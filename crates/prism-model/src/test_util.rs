@@ -5,7 +5,7 @@ use burn::tensor::{Device, Tensor};
 
 /// The ndarray device (the backend every test must pass on).
 pub fn ndarray() -> Device {
-    prism_data::BackendKind::Ndarray
+    prism_core::BackendKind::Ndarray
         .device()
         .expect("ndarray is compiled in")
 }
@@ -38,7 +38,7 @@ pub fn parameters<M: Module>(module: &M) -> Vec<(String, Vec<f32>)> {
 /// Protocol-like views of `b` pairs at `h x w`: the frontal source camera and targets at
 /// several yaw and pitch angles on the 2 m orbit, grey background.
 pub fn views(b: usize, h: usize, w: usize) -> crate::Views {
-    use prism_data::{Camera, Intrinsics};
+    use prism_core::{Camera, Intrinsics};
     let k = Intrinsics::protocol_default(w as u32, h as u32);
     let centre = glam::Vec3::new(0.0, 0.9, 0.0);
     let source = vec![Camera::orbit(0.0, 0.0, 2.0, centre, k); b];
@@ -63,8 +63,8 @@ pub fn inputs(b: usize, h: usize, w: usize, device: &Device) -> ([Tensor<4>; 3],
     let views = views(b, h, w);
     device.seed(11);
     let image = Tensor::random([b, 3, h, w], Distribution::Uniform(0.0, 1.0), device);
-    let source = prism_data::rays::plucker_rays(&views.source, device);
-    let target = prism_data::rays::plucker_rays(&views.target, device);
+    let source = prism_core::rays::plucker_rays(&views.source, device);
+    let target = prism_core::rays::plucker_rays(&views.target, device);
     ([image, source, target], views)
 }
 

@@ -3,8 +3,8 @@
 //! into the target view).
 
 use burn::tensor::{Device, Tensor, TensorData};
-use prism_data::Camera;
-use prism_data::dataset::PrismBatch;
+use prism_core::Camera;
+use prism_data::PrismBatch;
 
 /// The cameras of `B` (source, target) pairs and the background colour that the 3DGS head
 /// composites over (the dataset's, `dataset.json`).

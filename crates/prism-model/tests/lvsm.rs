@@ -9,8 +9,8 @@ use std::path::{Path, PathBuf};
 
 use burn::tensor::{Device, Tensor, TensorData};
 use glam::Mat4;
-use prism_data::rays::plucker_rays;
-use prism_data::{BackendKind, Camera, Intrinsics};
+use prism_core::rays::plucker_rays;
+use prism_core::{BackendKind, Camera, Intrinsics};
 use prism_model::{BlockPlacement, LvsmCheckpoint, ModelError, PrismConfig};
 
 fn fixtures() -> PathBuf {

@@ -13,7 +13,7 @@
 use std::time::Instant;
 
 use burn::tensor::{Distribution, Tensor};
-use prism_data::{BackendKind, Camera, Intrinsics};
+use prism_core::{BackendKind, Camera, Intrinsics};
 use prism_render::splat::{Gaussians, render};
 
 struct Options {

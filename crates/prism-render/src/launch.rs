@@ -9,7 +9,7 @@ use burn_cubecl::{CubeBackend, CubeDevice};
 use cubecl::ir::features::AtomicUsage;
 use cubecl::ir::{ElemType, FloatKind, Type};
 use cubecl::prelude::*;
-use prism_data::Camera;
+use prism_core::Camera;
 
 /// A contiguous `f32` copy of `tensor` (the kernels index flat `f32` buffers).
 pub(crate) fn prepared(tensor: CubeTensor) -> CubeTensor {

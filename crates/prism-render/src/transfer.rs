@@ -2,7 +2,7 @@
 //! on the host (on the CPU backends), and the count of those reads.
 //!
 //! Every read a geometry operation makes goes through [`to_host`], which counts it
-//! ([`prism_data::reads`]): on a GPU a read is a synchronisation that empties the device's
+//! ([`prism_core::reads`]): on a GPU a read is a synchronisation that empties the device's
 //! queue, so `prism bench` reports the count per training step and per frame, and a test
 //! asserts that a step on a GPU backend makes none.
 
@@ -10,7 +10,7 @@ use burn::backend::Backend;
 use burn::backend::tensor::FloatTensor;
 use burn::tensor::{TensorData, read_sync};
 
-use prism_data::reads::count_geometry_read;
+use prism_core::reads::count_geometry_read;
 
 /// Reads a primitive to host memory as `f32`, counting the read.
 ///

@@ -5,7 +5,8 @@
 
 use burn::tensor::{Tensor, TensorData};
 use glam::{DVec3, Vec3};
-use prism_data::{BackendKind, BodyModel, BodyParams, Camera, Intrinsics};
+use prism_body::{BodyModel, BodyParams};
+use prism_core::{BackendKind, Camera, Intrinsics};
 use prism_render::mesh::{rasterize, rasterize_maps};
 
 #[cfg(feature = "wgpu")]
@@ -278,11 +279,11 @@ fn the_device_rasterizer_matches_the_host() {
     let Some(gpu) = common::wgpu() else { return };
     let (vertices, rest, faces, cameras) = posed_scene();
     let cpu = BackendKind::Ndarray.device().unwrap();
-    let reads = prism_data::reads::geometry_host_reads();
+    let reads = prism_core::reads::geometry_host_reads();
     let maps = rasterize_maps(twice(&vertices, &gpu), &faces, &cameras).unwrap();
     let map = maps.interpolate(twice(&rest, &gpu), &faces);
     assert_eq!(
-        prism_data::reads::geometry_host_reads(),
+        prism_core::reads::geometry_host_reads(),
         reads,
         "the device rasterizer read from the device"
     );

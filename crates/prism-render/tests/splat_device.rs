@@ -8,8 +8,8 @@ mod common;
 
 use burn::tensor::Device;
 use common::{Scene, device, host, orbit_camera, serial, tracked, wgpu};
-use prism_data::Camera;
-use prism_data::reads::geometry_host_reads;
+use prism_core::Camera;
+use prism_core::reads::geometry_host_reads;
 use prism_render::splat::{Gaussians, render};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -10,7 +10,7 @@ mod common;
 
 use burn::tensor::{Device, Tensor, TensorData};
 use common::{Scene, device, host, orbit_camera, tracked};
-use prism_data::Camera;
+use prism_core::Camera;
 use prism_render::splat::{Gaussians, render};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -237,7 +237,7 @@ fn batched_gradients_are_per_element_gradients_on_ndarray_and_flex() {
         ]
     };
     let ndarray = device().autodiff();
-    let flex = prism_data::BackendKind::Flex.device().unwrap().autodiff();
+    let flex = prism_core::BackendKind::Flex.device().unwrap().autodiff();
     let elements: Vec<Scene> = (0..2)
         .map(|b| scene(10 + b, &cams[b as usize], 2))
         .collect();

@@ -4,7 +4,7 @@
 
 use burn::tensor::ops::{GridSampleOptions, GridSamplePaddingMode, InterpolateMode};
 use burn::tensor::{Device, Tensor, TensorData};
-use prism_data::BackendKind;
+use prism_core::BackendKind;
 use prism_render::triplane::{PLANE_AXES, sample_triplane};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -116,10 +116,10 @@ fn the_device_kernels_match_finite_differences_and_the_host() {
         let grads = (out.clone() * wt).sum().backward();
         [out, p.grad(&grads).unwrap(), x.grad(&grads).unwrap()]
     };
-    let reads = prism_data::reads::geometry_host_reads();
+    let reads = prism_core::reads::geometry_host_reads();
     let got = run(&gpu);
     assert_eq!(
-        prism_data::reads::geometry_host_reads(),
+        prism_core::reads::geometry_host_reads(),
         reads,
         "triplane sampling read from the device"
     );

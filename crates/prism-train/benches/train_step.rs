@@ -7,11 +7,9 @@
 //! times logged in `metrics.jsonl` after two warm-up steps. Validation and checkpoints are not
 //! part of a step's time.
 
-use prism_data::BackendKind;
-use prism_train::{
-    RunOptions, TeacherTask, TrainingConfig, configs_dir, ensure_synthetic_dataset, read_metrics,
-    train,
-};
+use prism_core::BackendKind;
+use prism_synth::ensure_synthetic_dataset;
+use prism_train::{RunOptions, TeacherTask, TrainingConfig, configs_dir, read_metrics, train};
 
 fn main() {
     let args: Vec<String> = std::env::args()
@@ -42,8 +40,7 @@ fn main() {
         let data = ensure_synthetic_dataset(&config.data, true).unwrap();
         for &backend in &backends {
             let out = tempfile::tempdir().unwrap();
-            let mut options = RunOptions::new(out.path(), backend);
-            options.data = Some(data.clone());
+            let options = RunOptions::new(out.path(), &data, backend);
             train(&config, &TeacherTask::default(), &options).unwrap();
             let mut times: Vec<f64> = read_metrics(&out.path().join(prism_train::METRICS_FILE))
                 .unwrap()

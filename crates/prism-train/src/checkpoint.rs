@@ -530,6 +530,5 @@ fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
 }
 
 fn write_json<T: Serialize + ?Sized>(path: &Path, value: &T) -> Result<()> {
-    let text = serde_json::to_string_pretty(value).expect("serialisable");
-    fs::write(path, text).map_err(|e| TrainError::io(path, e))
+    prism_core::files::write_json(path, value).map_err(|e| TrainError::io(path, e))
 }

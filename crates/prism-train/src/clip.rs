@@ -33,7 +33,7 @@ pub fn global_norm<M: Module>(module: &M, grads: &GradientsParams) -> f64 {
     let mut visitor = SumSquares { grads, total: None };
     module.visit(&mut visitor);
     visitor.total.map_or(0.0, |t| {
-        prism_data::reads::count_host_read();
+        prism_core::reads::count_host_read();
         t.into_scalar::<f64>().sqrt()
     })
 }
@@ -106,7 +106,7 @@ pub fn parameter_values<M: Module>(module: &M) -> Vec<Vec<f32>> {
 mod tests {
     use super::*;
     use burn::nn::{Linear, LinearConfig};
-    use prism_data::BackendKind;
+    use prism_core::BackendKind;
 
     #[test]
     fn global_norm_and_clipping() {

@@ -7,6 +7,7 @@
 use std::path::{Path, PathBuf};
 
 use burn::config::Config;
+use prism_data::SynthOptions;
 use prism_losses::LossWeights;
 use prism_model::{DistillConfig, PrismConfig};
 use serde::{Deserialize, Serialize};
@@ -62,41 +63,6 @@ pub struct TrainConfig {
     pub data_workers: usize,
 }
 
-/// The default synthetic dataset, used when no `--data` is given: the `[data]` section.
-///
-/// It is synthesised once into the cache folder (see [`crate::cache_dir`]) under a name made
-/// from these settings, and reused by every later run with the same settings.
-#[derive(Config, Debug, PartialEq)]
-pub struct SyntheticDataConfig {
-    /// Number of procedural people.
-    pub subjects: usize,
-    /// Image width and height of the rendered views, pixels (samples are resized to the
-    /// model's resolution when they differ).
-    pub resolution: u32,
-    /// Seed of the dataset (people, poses, placements, views).
-    pub seed: u64,
-    /// Fraction of the subjects held out for validation (the last ones; at least one).
-    pub test_fraction: f32,
-    /// Supersampling of the renderer (s x s samples per pixel).
-    pub supersample: u32,
-    /// Background colour the views are composited on, components in [0, 1].
-    pub background: [f32; 3],
-}
-
-impl SyntheticDataConfig {
-    /// The options of prism-data's synthesiser.
-    pub fn synth_options(&self) -> prism_data::synth::SynthOptions {
-        prism_data::synth::SynthOptions {
-            subjects: self.subjects,
-            resolution: self.resolution,
-            seed: self.seed,
-            test_fraction: self.test_fraction,
-            background: self.background,
-            supersample: self.supersample,
-        }
-    }
-}
-
 /// A training config file: every section a training run reads.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct TrainingConfig {
@@ -108,8 +74,9 @@ pub struct TrainingConfig {
     pub losses: LossWeights,
     /// The `[train]` section.
     pub train: TrainConfig,
-    /// The `[data]` section: the default synthetic dataset.
-    pub data: SyntheticDataConfig,
+    /// The `[data]` section: the synthetic dataset the commands train on when no `--data` is
+    /// given (synthesised once into the cache folder by `prism_synth::ensure_synthetic_dataset`).
+    pub data: SynthOptions,
 }
 
 /// The sections this crate parses itself (the model's are parsed by prism-model).
@@ -117,7 +84,7 @@ pub struct TrainingConfig {
 struct OwnSections {
     losses: LossWeights,
     train: TrainConfig,
-    data: SyntheticDataConfig,
+    data: SynthOptions,
 }
 
 impl TrainingConfig {

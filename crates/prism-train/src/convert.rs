@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use prism_data::BackendKind;
+use prism_core::BackendKind;
 use prism_model::{BlockPlacement, LvsmCheckpoint, LvsmConversion};
 
 use crate::checkpoint::save_model_checkpoint;

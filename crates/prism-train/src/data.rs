@@ -6,7 +6,7 @@ use std::sync::Arc;
 use std::sync::mpsc::{Receiver, sync_channel};
 use std::thread;
 
-use prism_data::dataset::{DataError, Sample, SampleDataset};
+use prism_data::{DataError, Sample, SampleDataset};
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
@@ -107,13 +107,12 @@ impl Prefetcher {
         thread::Builder::new()
             .name("prism-data".into())
             .spawn(move || {
-                let pool = match rayon::ThreadPoolBuilder::new()
+                let Ok(pool) = rayon::ThreadPoolBuilder::new()
                     .num_threads(workers)
                     .thread_name(|i| format!("prism-data-{i}"))
                     .build()
-                {
-                    Ok(pool) => pool,
-                    Err(_) => return,
+                else {
+                    return;
                 };
                 for step in steps {
                     let items = order.items(step);

@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use prism_data::dataset::DataError;
+use prism_data::DataError;
 use prism_losses::LossError;
 use prism_model::ModelError;
 
@@ -46,7 +46,7 @@ pub enum TrainError {
     Loss(#[from] LossError),
     /// The backend cannot be used.
     #[error(transparent)]
-    Backend(#[from] prism_data::BackendError),
+    Backend(#[from] prism_core::BackendError),
     /// A file or folder of the run could not be read or written.
     #[error("{path}: {cause}")]
     Io {

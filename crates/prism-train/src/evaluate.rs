@@ -18,16 +18,13 @@ use std::time::Instant;
 use burn::tensor::{Device, Tensor};
 use image::RgbImage;
 use indicatif::ProgressBar;
-use prism_data::BackendKind;
-use prism_data::dataset::{
-    DatasetReader, PrismBatcher, Sample, SampleDataset, SplitKind, TargetSelection,
-};
-use prism_data::protocol::EVAL_TARGETS;
+use prism_core::BackendKind;
+use prism_core::protocol::EVAL_TARGETS;
+use prism_data::{DatasetReader, PrismBatcher, Sample, SampleDataset, SplitKind, TargetSelection};
 use prism_losses::{LPIPS_MIN_SIDE, Lpips, psnr, ssim};
 use prism_model::Prism;
 use serde::Serialize;
 
-use crate::cache::ensure_synthetic_dataset;
 use crate::checkpoint::{CHECKPOINTS_DIR, load_model};
 use crate::error::{Result, TrainError};
 use crate::images::{HostImages, error_map, save_png, save_text, tile};
@@ -253,14 +250,13 @@ fn score(pred: Tensor<4>, gt: Tensor<4>, lpips: Option<&Lpips>) -> Vec<[f64; 3]>
 }
 
 /// Evaluates a checkpoint (a checkpoint folder or a run folder's latest) on the dataset at
-/// `data` (default: its config's synthetic dataset, synthesised into the cache if needed) on
-/// `backend`, and writes the JSON, the report and the grids into `out`.
+/// `data` on `backend`, and writes the JSON, the report and the grids into `out`.
 ///
 /// # Errors
 /// An unreadable checkpoint, dataset or LPIPS weight file, or I/O errors.
 pub fn evaluate_checkpoint(
     checkpoint: &Path,
-    data: Option<&Path>,
+    data: &Path,
     out: &Path,
     backend: BackendKind,
     lpips_weights: Option<&Path>,
@@ -268,10 +264,7 @@ pub fn evaluate_checkpoint(
 ) -> Result<(Evaluation, EvaluationFiles)> {
     let device = backend.device()?;
     let (model, config) = load_model(checkpoint, &device)?;
-    let data_dir = match data {
-        Some(dir) => dir.to_path_buf(),
-        None => ensure_synthetic_dataset(&config.data, options.progress)?,
-    };
+    let data_dir = data.to_path_buf();
     let reader = DatasetReader::open(&data_dir)?;
     let lpips = Lpips::load_default(lpips_weights, &device)?;
     let resolution = config.model.resolution as u32;
@@ -453,7 +446,7 @@ fn angle_bins(views: &[ViewScore], angle: impl Fn(&ViewScore) -> f32) -> Vec<Ang
 }
 
 fn progress_bar(show: bool, len: u64) -> ProgressBar {
-    crate::progress::progress_bar(
+    prism_core::progress::progress_bar(
         show,
         len,
         "evaluating [{bar:30}] {pos}/{len} views {msg} (ETA {eta})",
@@ -489,7 +482,7 @@ pub fn write_evaluation(
     run: Option<&Path>,
 ) -> Result<EvaluationFiles> {
     let grid_dir = dir.join(GRIDS_DIR);
-    std::fs::create_dir_all(&grid_dir).map_err(|e| TrainError::io(&grid_dir, e))?;
+    fs::create_dir_all(&grid_dir).map_err(|e| TrainError::io(&grid_dir, e))?;
     let mut grid_paths = Vec::new();
     for grid in grids {
         let path = grid_dir.join(format!("{}.png", grid.subject));
@@ -527,9 +520,8 @@ fn training_curves(run: &Path, out: &Path) -> Result<Option<PathBuf>> {
     let plot = run.join(PLOT_FILE);
     let metrics = run.join(METRICS_FILE);
     if plot.is_file() {
-        let tmp = out.with_extension("png.partial");
-        std::fs::copy(&plot, &tmp).map_err(|e| TrainError::io(&plot, e))?;
-        std::fs::rename(&tmp, out).map_err(|e| TrainError::io(out, e))?;
+        let bytes = fs::read(&plot).map_err(|e| TrainError::io(&plot, e))?;
+        prism_core::files::write_bytes(out, &bytes).map_err(|e| TrainError::io(out, e))?;
     } else if metrics.is_file() {
         let name = run.file_name().unwrap_or(run.as_os_str()).to_string_lossy();
         plot_metrics(&metrics, out, &format!("training curves of {name}"))?;

@@ -136,7 +136,7 @@ mod tests {
             .with_gs_head(false)
             .with_gs_depth(prism_model::gaussian_head::GsDepth::Head)
             .with_nvs_output(prism_model::head::NvsOutput::Direct);
-        let device = prism_data::BackendKind::Ndarray
+        let device = prism_core::BackendKind::Ndarray
             .device()
             .unwrap()
             .autodiff();

@@ -1,80 +1,18 @@
-//! Images out of the model: tensors to 8-bit RGB, sample grids, error maps, animated GIFs, all
-//! written atomically (a temporary file in the same folder, then a rename).
+//! Images out of the model: sample grids, error maps, animated GIFs, all written through
+//! `prism_core::files` (atomic). Tensor and float conversions are `prism_core::images`'.
 
-use std::fs;
 use std::path::Path;
 
-use burn::tensor::Tensor;
 use image::codecs::gif::{GifEncoder, Repeat};
-use image::{Delay, Frame, Rgb, Rgb32FImage, RgbImage, RgbaImage};
+use image::{Delay, Frame, Rgb, RgbImage, RgbaImage};
+pub use prism_core::images::{HostImages, to_u8};
+use prism_core::{files, images};
 
 use crate::error::{Result, TrainError};
 
 /// Mean absolute error (over R, G, B) that an error map draws as white; smaller errors go
 /// through red and yellow, 0 is black.
 pub const ERROR_MAP_FULL_SCALE: f32 = 0.25;
-
-/// A host copy of a batch of images, `[B, 3, H, W]` in [0, 1], as B channel-major float
-/// buffers: what grids and error maps are made from.
-#[derive(Clone, Debug)]
-pub struct HostImages {
-    /// Width in pixels.
-    pub width: usize,
-    /// Height in pixels.
-    pub height: usize,
-    /// One `[3, H, W]` buffer per image.
-    pub images: Vec<Vec<f32>>,
-}
-
-impl HostImages {
-    /// Reads `[B, 3, H, W]` back from the device.
-    ///
-    /// # Panics
-    /// If the tensor does not have 3 channels.
-    pub fn from_tensor(tensor: Tensor<4>) -> Self {
-        let [b, c, height, width] = tensor.dims();
-        assert_eq!(c, 3, "RGB images have 3 channels, got {c}");
-        let data: Vec<f32> = tensor
-            .into_data()
-            .convert::<f32>()
-            .try_into_vec()
-            .expect("float image data");
-        let plane = 3 * height * width;
-        Self {
-            width,
-            height,
-            images: (0..b)
-                .map(|i| data[i * plane..(i + 1) * plane].to_vec())
-                .collect(),
-        }
-    }
-
-    /// Image `i` as 8-bit RGB (values clamped to [0, 1], rounded).
-    pub fn rgb8(&self, i: usize) -> RgbImage {
-        chw_to_rgb8(&self.images[i], self.width, self.height)
-    }
-}
-
-/// A channel-major `[3, H, W]` buffer in [0, 1] as 8-bit RGB.
-pub fn chw_to_rgb8(chw: &[f32], width: usize, height: usize) -> RgbImage {
-    let plane = width * height;
-    RgbImage::from_fn(width as u32, height as u32, |x, y| {
-        let i = y as usize * width + x as usize;
-        Rgb([0, 1, 2].map(|c| to_u8(chw[c * plane + i])))
-    })
-}
-
-/// A float RGB image in [0, 1] as 8-bit RGB.
-pub fn rgb32_to_rgb8(image: &Rgb32FImage) -> RgbImage {
-    RgbImage::from_fn(image.width(), image.height(), |x, y| {
-        Rgb(image.get_pixel(x, y).0.map(to_u8))
-    })
-}
-
-/// `v` in [0, 1] to 0..=255, rounded.
-pub fn to_u8(v: f32) -> u8 {
-    (v.clamp(0.0, 1.0) * 255.0).round() as u8
-}
 
 /// The error map of a prediction against its ground truth (both `[3, H, W]` in [0, 1]): per
 /// pixel the mean absolute error over R, G, B, drawn on a heat ramp from black (0) through red
@@ -123,16 +61,12 @@ pub fn tile(rows: &[Vec<RgbImage>]) -> RgbImage {
     out
 }
 
-/// Writes an image as PNG atomically.
+/// Writes an 8-bit RGB image as a PNG, atomically (`prism_core::images::save_png`).
 ///
 /// # Errors
 /// I/O or encoding errors, naming the file.
 pub fn save_png(path: &Path, image: &RgbImage) -> Result<()> {
-    let tmp = partial_path(path);
-    image
-        .save_with_format(&tmp, image::ImageFormat::Png)
-        .map_err(|e| TrainError::io(&tmp, std::io::Error::other(e)))?;
-    fs::rename(&tmp, path).map_err(|e| TrainError::io(path, e))
+    images::save_png(path, image).map_err(|e| TrainError::io(path, e))
 }
 
 /// Writes `frames` as an animated GIF that loops forever, `delay_ms` per frame, atomically.
@@ -146,41 +80,33 @@ pub fn save_gif(path: &Path, frames: &[RgbImage], delay_ms: u32) -> Result<()> {
             std::io::Error::other("an animated GIF needs at least one frame"),
         ));
     }
-    let tmp = partial_path(path);
-    let file = fs::File::create(&tmp).map_err(|e| TrainError::io(&tmp, e))?;
-    let encode = || -> image::ImageResult<()> {
-        let mut encoder = GifEncoder::new_with_speed(std::io::BufWriter::new(file), 10);
-        encoder.set_repeat(Repeat::Infinite)?;
+    files::write_atomic(path, |out| {
+        let mut encoder = GifEncoder::new_with_speed(out, 10);
+        encoder
+            .set_repeat(Repeat::Infinite)
+            .map_err(std::io::Error::other)?;
         for frame in frames {
             let rgba: RgbaImage = image::DynamicImage::ImageRgb8(frame.clone()).to_rgba8();
-            encoder.encode_frame(Frame::from_parts(
-                rgba,
-                0,
-                0,
-                Delay::from_numer_denom_ms(delay_ms, 1),
-            ))?;
+            encoder
+                .encode_frame(Frame::from_parts(
+                    rgba,
+                    0,
+                    0,
+                    Delay::from_numer_denom_ms(delay_ms, 1),
+                ))
+                .map_err(std::io::Error::other)?;
         }
         Ok(())
-    };
-    encode().map_err(|e| TrainError::io(&tmp, std::io::Error::other(e)))?;
-    fs::rename(&tmp, path).map_err(|e| TrainError::io(path, e))
+    })
+    .map_err(|e| TrainError::io(path, e))
 }
 
-/// Writes a text file atomically.
+/// Writes a text file, atomically.
 ///
 /// # Errors
 /// I/O errors, naming the file.
 pub fn save_text(path: &Path, text: &str) -> Result<()> {
-    let tmp = partial_path(path);
-    fs::write(&tmp, text).map_err(|e| TrainError::io(&tmp, e))?;
-    fs::rename(&tmp, path).map_err(|e| TrainError::io(path, e))
-}
-
-/// `NAME.partial` next to `path`.
-fn partial_path(path: &Path) -> std::path::PathBuf {
-    let mut name = path.file_name().unwrap_or_default().to_os_string();
-    name.push(".partial");
-    path.with_file_name(name)
+    files::write_bytes(path, text.as_bytes()).map_err(|e| TrainError::io(path, e))
 }
 
 #[cfg(test)]
@@ -231,13 +157,13 @@ mod tests {
             .collect();
         save_gif(&path, &frames, 100).unwrap();
         let decoder = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(
-            fs::File::open(&path).unwrap(),
+            std::fs::File::open(&path).unwrap(),
         ))
         .unwrap();
         use image::AnimationDecoder;
         let decoded = decoder.into_frames().collect_frames().unwrap();
         assert_eq!(decoded.len(), 3);
         assert_eq!(decoded[2].buffer().get_pixel(4, 4).0[0], 160);
-        assert!(!dir.path().join("a.gif.partial").exists());
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
     }
 }

@@ -11,12 +11,12 @@ use std::path::{Path, PathBuf};
 use burn::tensor::Device;
 use image::{DynamicImage, GrayImage, Rgb, Rgb32FImage, RgbImage, Rgba32FImage};
 use indicatif::ProgressBar;
-use prism_data::{BackendKind, Camera, Intrinsics, ViewAngles, ViewingProtocol};
+use prism_core::{BackendKind, Camera, Intrinsics, ViewAngles, ViewingProtocol};
 use prism_model::Prism;
 
 use crate::checkpoint::load_model;
 use crate::error::{Result, TrainError};
-use crate::images::{HostImages, save_gif, save_png, to_u8};
+use crate::images::{HostImages, save_gif, save_png};
 use crate::predict::{Pairs, forward_pairs, inference_model, synthesise};
 
 /// Fraction of the image height the person's bounding box spans in the frontal view of the
@@ -418,7 +418,10 @@ pub fn infer(
             out.to_path_buf()
         };
         std::fs::create_dir_all(&dir).map_err(|e| TrainError::io(&dir, e))?;
-        save_png(&dir.join(INPUT_PNG), &rgb8(&framed.image))?;
+        save_png(
+            &dir.join(INPUT_PNG),
+            &prism_core::images::rgb32_to_rgb8(&framed.image),
+        )?;
         let frames = synthesise_views(
             &inference,
             &framed.image,
@@ -487,117 +490,10 @@ fn input_error(path: &Path, message: impl Into<String>) -> TrainError {
     TrainError::io(path, std::io::Error::other(message.into()))
 }
 
-fn rgb8(image: &Rgb32FImage) -> RgbImage {
-    RgbImage::from_fn(image.width(), image.height(), |x, y| {
-        Rgb(image.get_pixel(x, y).0.map(to_u8))
-    })
-}
-
 fn progress_bar(show: bool, len: u64) -> ProgressBar {
-    crate::progress::progress_bar(
+    prism_core::progress::progress_bar(
         show,
         len,
         "synthesising views [{bar:30}] {pos}/{len} (ETA {eta})",
     )
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use image::{Luma, Rgba, RgbaImage};
-
-    #[test]
-    fn sweeps_cover_plus_minus_thirty_degrees() {
-        let yaw = sweep_views(Sweep::Yaw, 10.0, 30.0);
-        let angles: Vec<(f32, f32)> = yaw.iter().map(|v| (v.yaw_deg, v.pitch_deg)).collect();
-        assert_eq!(
-            angles,
-            [-30.0, -20.0, -10.0, 0.0, 10.0, 20.0, 30.0].map(|a| (a, 0.0))
-        );
-        assert_eq!(sweep_views(Sweep::Pitch, 25.0, 30.0).len(), 4); // -30, -5, 20, 30
-        let grid = sweep_views(Sweep::Grid, 30.0, 30.0);
-        assert_eq!(grid.len(), 9);
-        assert_eq!((grid[1].yaw_deg, grid[1].pitch_deg), (0.0, -30.0));
-        assert_eq!(grid[8].index, 8);
-        assert_eq!(view_file_name(&yaw[0]), "view_000_yaw-30_pitch+00.png");
-    }
-
-    /// A photo with a red person box: the frame puts the box centred horizontally, 94.8 % of
-    /// the height tall, its centre 51.7 % of the height down.
-    #[test]
-    fn a_masked_person_is_centred_and_scaled_like_the_training_data() {
-        // 200 x 100 photo, person (red) at x 20..40, y 10..60 (50 px tall), grey elsewhere.
-        let photo = RgbaImage::from_fn(200, 100, |x, y| {
-            if (20..40).contains(&x) && (10..60).contains(&y) {
-                Rgba([255, 0, 0, 255])
-            } else {
-                Rgba([90, 90, 90, 255])
-            }
-        });
-        let mask = GrayImage::from_fn(200, 100, |x, y| {
-            Luma([if (20..40).contains(&x) && (10..60).contains(&y) {
-                255
-            } else {
-                0
-            }])
-        });
-        let framed = frame_photo(
-            &DynamicImage::ImageRgba8(photo.clone()),
-            Some(&mask),
-            40,
-            [1.0, 1.0, 1.0],
-        )
-        .unwrap();
-        assert_eq!(framed.framing, Framing::Mask);
-        let red = |p: &Rgb<f32>| p.0[0] > 0.9 && p.0[1] < 0.1;
-        let rows: Vec<u32> = (0..40)
-            .filter(|&y| (0..40).any(|x| red(framed.image.get_pixel(x, y))))
-            .collect();
-        let cols: Vec<u32> = (0..40)
-            .filter(|&x| (0..40).any(|y| red(framed.image.get_pixel(x, y))))
-            .collect();
-        // 94.8 % of 40 px = 37.9 rows centred on 20.7: 1.7..39.6, fully covered rows 2..=38;
-        // 20 / 50 * 37.9 = 15.2 px wide, centred on 20.
-        assert_eq!((rows[0], *rows.last().unwrap()), (2, 38));
-        assert!(cols.len() >= 14 && cols.len() <= 15, "{cols:?}");
-        assert!((cols[0] as f32 + *cols.last().unwrap() as f32 + 1.0) / 2.0 - 20.0 < 1.0);
-        // Off the person: the background, not the grey of the photo.
-        assert_eq!(framed.image.get_pixel(0, 20).0, [1.0, 1.0, 1.0]);
-
-        // The same person given by the alpha channel.
-        let mut with_alpha = photo;
-        for (p, m) in with_alpha.pixels_mut().zip(mask.pixels()) {
-            p.0[3] = m.0[0];
-        }
-        let framed_alpha = frame_photo(
-            &DynamicImage::ImageRgba8(with_alpha),
-            None,
-            40,
-            [1.0, 1.0, 1.0],
-        )
-        .unwrap();
-        assert_eq!(framed_alpha.framing, Framing::Alpha);
-        assert_eq!(framed_alpha.image, framed.image);
-
-        // Neither: the whole photo, centre-cropped (the grey middle of the photo).
-        let whole = frame_photo(
-            &DynamicImage::ImageRgb8(
-                DynamicImage::ImageRgba8(RgbaImage::from_pixel(60, 30, Rgba([90, 90, 90, 255])))
-                    .to_rgb8(),
-            ),
-            None,
-            16,
-            [1.0, 1.0, 1.0],
-        )
-        .unwrap();
-        assert_eq!(whole.framing, Framing::WholeImage);
-        assert!((whole.image.get_pixel(0, 0).0[0] - 90.0 / 255.0).abs() < 1e-4);
-    }
-
-    #[test]
-    fn an_empty_mask_is_an_error() {
-        let photo = DynamicImage::ImageRgb8(RgbImage::new(8, 8));
-        let err = frame_photo(&photo, Some(&GrayImage::new(8, 8)), 8, [1.0; 3]).unwrap_err();
-        assert!(err.contains("no pixel"), "{err}");
-    }
 }

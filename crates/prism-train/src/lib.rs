@@ -2,21 +2,21 @@
 //! teacher's job (`prism train-teacher`).
 //!
 //! - Config: [`TrainingConfig`] composes the `[model]`, `[distill]`, `[losses]`, `[train]`
-//!   ([`TrainConfig`]) and `[data]` ([`SyntheticDataConfig`]) sections of a TOML file.
+//!   ([`TrainConfig`]) and `[data]` (`prism_data::SynthOptions`) sections of a TOML file.
 //! - Loop: [`train`] runs a [`Task`] (its per-device [`StepLoss`] and a per-step hook) with
 //!   AdamW, the [`WarmupCosine`] schedules of the backbone and the [`HEAD_MODULES`], global-norm
 //!   clipping, a non-finite guard, data parallelism through Burn ([`DataParallel`]),
 //!   validation ([`Validator`]), `metrics.jsonl` ([`MetricsLog`]) and atomic checkpoints
 //!   ([`save_checkpoint`], [`Checkpoint`], [`load_model`]).
 //! - Data: [`DataOrder`] makes each step's samples a pure function of (seed, step), so a
-//!   resumed run continues exactly; the default synthetic dataset lives in [`cache_dir`].
+//!   resumed run continues exactly. The trainer receives a dataset folder; the commands choose
+//!   it (`--data`, or the config's synthetic dataset from `prism_synth`'s cache).
 //! - Teacher: [`TeacherTask`] / [`TeacherLoss`].
 //! - Student: [`StudentTask`] / [`StudentLoss`] with [`student_config`] (distillation).
 //! - Evaluation ([`evaluate`]: the paper's protocol, per-angle breakdown, FPS, report) and
 //!   inference from a photo ([`infer`]), both through [`predict`]; images in [`images`].
 //! - Training curves: [`plot_run`] draws a run's `metrics.jsonl` into its [`PLOT_FILE`].
 
-pub mod cache;
 pub mod checkpoint;
 pub mod clip;
 pub mod config;
@@ -31,7 +31,6 @@ pub mod log;
 pub mod parallel;
 pub mod plot;
 pub mod predict;
-pub mod progress;
 pub mod quickstart;
 pub mod schedule;
 pub mod step;
@@ -40,14 +39,13 @@ pub mod teacher;
 pub mod trainer;
 pub mod validate;
 
-pub use cache::{CACHE_ENV, cache_dir, ensure_synthetic_dataset, synthetic_dataset_dir};
 pub use checkpoint::{
     CHECKPOINTS_DIR, Checkpoint, CheckpointContents, CheckpointState, checkpoint_dir,
     latest_checkpoint, list_checkpoints, load_model, save_checkpoint, save_model_checkpoint,
     write_checkpoint_files,
 };
 pub use clip::{clip_global_norm, global_norm, parameter_values};
-pub use config::{SyntheticDataConfig, TrainConfig, TrainingConfig, config_name, configs_dir};
+pub use config::{TrainConfig, TrainingConfig, config_name, configs_dir};
 pub use convert::{LVSM_TASK, convert_lvsm};
 pub use data::{DataOrder, Prefetcher};
 pub use error::TrainError;

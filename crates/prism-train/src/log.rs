@@ -43,13 +43,12 @@ impl MetricsLog {
                 .filter(|(value, _)| line_step(value).is_some_and(|s| s <= step))
                 .map(|(_, line)| line)
                 .collect();
-            let tmp = path.with_extension("jsonl.partial");
             let mut text = kept.join("\n");
             if !text.is_empty() {
                 text.push('\n');
             }
-            fs::write(&tmp, text).map_err(|e| TrainError::io(&tmp, e))?;
-            fs::rename(&tmp, &path).map_err(|e| TrainError::io(&path, e))?;
+            prism_core::files::write_bytes(&path, text.as_bytes())
+                .map_err(|e| TrainError::io(&path, e))?;
         }
         let file = OpenOptions::new()
             .create(true)

@@ -15,7 +15,7 @@ use burn::optim::{GradientsAccumulator, GradientsParams};
 use burn::tensor::Device;
 use burn::train::TrainStep;
 use burn::train::train::MultiDevicesTrainStep;
-use prism_data::BackendKind;
+use prism_core::BackendKind;
 
 use crate::error::{Result, TrainError};
 use crate::step::{StepValues, TrainItem, Trainee};

@@ -3,10 +3,10 @@
 
 use burn::tensor::{Device, Tensor, TensorData};
 use image::Rgb32FImage;
-use prism_data::Camera;
-use prism_data::dataset::PrismBatch;
-use prism_data::dataset::batch::rgb_chw;
-use prism_data::rays::plucker_rays;
+use prism_core::Camera;
+use prism_core::rays::plucker_rays;
+use prism_data::PrismBatch;
+use prism_data::batch::rgb_chw;
 use prism_model::{Prism, PrismOutput, Views};
 
 /// A batch of `B` (source, target) pairs as the model takes them, with their cameras.

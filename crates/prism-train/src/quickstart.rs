@@ -12,9 +12,8 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use prism_data::BackendKind;
+use prism_core::BackendKind;
 
-use crate::cache::ensure_synthetic_dataset;
 use crate::config::TrainingConfig;
 use crate::error::Result;
 use crate::evaluate::{EvaluateOptions, Evaluation, EvaluationFiles, evaluate_checkpoint};
@@ -91,6 +90,8 @@ pub type StudentJob<'a> = &'a dyn Fn(&TrainingConfig, &Path, &RunOptions) -> Res
 pub struct QuickstartOptions {
     /// Folder of the runs and evaluations (`teacher/`, `student/`, each with `evaluation/`).
     pub out: PathBuf,
+    /// The dataset trained and evaluated on.
+    pub data: PathBuf,
     /// Backend of training and evaluation.
     pub backend: BackendKind,
     /// LPIPS weight file (default: the project's search order).
@@ -119,8 +120,6 @@ pub struct QuickstartModel {
 pub struct QuickstartReport {
     /// The dataset trained and evaluated on.
     pub data_dir: PathBuf,
-    /// Seconds to synthesise (or find) the dataset.
-    pub data_seconds: f64,
     /// The teacher.
     pub teacher: QuickstartModel,
     /// The student.
@@ -129,7 +128,8 @@ pub struct QuickstartReport {
     pub wall_seconds: f64,
 }
 
-/// Runs the quickstart: dataset, teacher, student (through `student_job`), both evaluations.
+/// Runs the quickstart on `options.data`: teacher, student (through `student_job`), both
+/// evaluations.
 /// Runs already complete in `options.out` are trained again from scratch.
 ///
 /// # Errors
@@ -140,8 +140,7 @@ pub fn quickstart(
     student_job: StudentJob<'_>,
 ) -> Result<QuickstartReport> {
     let start = Instant::now();
-    let data_dir = ensure_synthetic_dataset(&plan.config.data, options.progress)?;
-    let data_seconds = start.elapsed().as_secs_f64();
+    let data_dir = options.data.clone();
     let eval = EvaluateOptions {
         views: plan.eval_views,
         progress: options.progress,
@@ -151,17 +150,16 @@ pub fn quickstart(
         // A fresh run each time: a previous quickstart's folder is replaced.
         let _ = std::fs::remove_dir_all(dir);
         RunOptions {
-            data: Some(data_dir.clone()),
             steps: Some(steps),
             progress: options.progress,
             lpips_weights: options.lpips_weights.clone(),
-            ..RunOptions::new(dir, options.backend)
+            ..RunOptions::new(dir, &data_dir, options.backend)
         }
     };
     let evaluate_run = |run: &Path, steps: usize, seconds: f64| -> Result<QuickstartModel> {
         let (evaluation, files) = evaluate_checkpoint(
             run,
-            Some(&data_dir),
+            &data_dir,
             &run.join("evaluation"),
             options.backend,
             options.lpips_weights.as_deref(),
@@ -199,7 +197,6 @@ pub fn quickstart(
     let student = evaluate_run(&student_dir, summary.steps, t0.elapsed().as_secs_f64())?;
     Ok(QuickstartReport {
         data_dir,
-        data_seconds,
         teacher,
         student,
         wall_seconds: start.elapsed().as_secs_f64(),
@@ -253,9 +250,8 @@ pub fn quickstart_table(report: &QuickstartReport) -> String {
     }
     let _ = writeln!(
         out,
-        "dataset {} ({:.0} s), total wall time {:.1} min",
+        "dataset {}, wall time {:.1} min",
         report.data_dir.display(),
-        report.data_seconds,
         report.wall_seconds / 60.0
     );
     out

@@ -8,7 +8,7 @@ use burn::module::Module;
 use burn::tensor::{ExecutionError, Tensor};
 use burn::train::metric::ItemLazy;
 use burn::train::{InferenceStep, TrainOutput, TrainStep};
-use prism_data::dataset::PrismBatch;
+use prism_data::PrismBatch;
 use prism_losses::LossTerms;
 use prism_model::Prism;
 

@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use burn::module::Module;
 use burn::tensor::{Device, Tensor};
-use prism_data::dataset::PrismBatch;
+use prism_data::PrismBatch;
 use prism_losses::LossTerms;
 use prism_model::{AttentionKind, Prism};
 use serde_json::{Value, json};
@@ -229,7 +229,7 @@ fn inner_batch(batch: &PrismBatch) -> PrismBatch {
 mod tests {
     use super::*;
     use crate::config::configs_dir;
-    use prism_data::BackendKind;
+    use prism_core::BackendKind;
 
     fn tiny() -> TrainingConfig {
         TrainingConfig::load(configs_dir().join("tiny.toml")).unwrap()

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use burn::tensor::Device;
-use prism_data::dataset::PrismBatch;
+use prism_data::PrismBatch;
 use prism_losses::{
     LossInputs, LossTerms, Lpips, Objective, OpacityInputs, PointInputs, SmplxInputs, SmplxParams,
     mask_rows,

@@ -14,15 +14,12 @@ use burn::module::Module;
 use burn::optim::AdamWConfig;
 use burn::tensor::Device;
 use indicatif::ProgressBar;
-use prism_data::BackendKind;
-use prism_data::dataset::{
-    DatasetReader, PrismBatcher, Sample, SampleDataset, SplitKind, TargetSelection,
-};
+use prism_core::BackendKind;
+use prism_data::{DatasetReader, PrismBatcher, Sample, SampleDataset, SplitKind, TargetSelection};
 use prism_losses::Lpips;
 use prism_model::Prism;
 use serde_json::{Value, json};
 
-use crate::cache::ensure_synthetic_dataset;
 use crate::checkpoint::{
     CHECKPOINT_FORMAT, CHECKPOINT_VERSION, Checkpoint, CheckpointContents, CheckpointState,
     check_architecture, check_resumable, latest_checkpoint, remove_partial_checkpoints,
@@ -33,12 +30,13 @@ use crate::config::TrainingConfig;
 use crate::data::{DataOrder, Prefetcher};
 use crate::error::{Result, TrainError};
 use crate::groups::learning_rates_with;
+use crate::images::save_png;
 use crate::log::MetricsLog;
 use crate::parallel::{DataParallel, training_devices};
 use crate::plot::plot_run;
 use crate::schedule::WarmupCosine;
 use crate::step::{StepLoss, StepValues, TrainItem, Trainee};
-use crate::validate::{ValidationScores, Validator, write_png};
+use crate::validate::{ValidationScores, Validator};
 
 /// AdamW's first-moment decay.
 pub const ADAM_BETA_1: f32 = 0.9;
@@ -91,9 +89,8 @@ pub struct TaskData {
 pub struct RunOptions {
     /// The run folder.
     pub out: PathBuf,
-    /// The dataset folder; `None` uses the config's synthetic dataset (synthesised once into
-    /// the cache).
-    pub data: Option<PathBuf>,
+    /// The dataset folder.
+    pub data: PathBuf,
     /// Overrides `train.steps`.
     pub steps: Option<usize>,
     /// Continue from the run folder's latest checkpoint.
@@ -111,11 +108,12 @@ pub struct RunOptions {
 }
 
 impl RunOptions {
-    /// Options for a fresh run into `out` on `backend`, one device, no progress bar.
-    pub fn new(out: impl Into<PathBuf>, backend: BackendKind) -> Self {
+    /// Options for a fresh run into `out` on the dataset `data` on `backend`, one device, no
+    /// progress bar.
+    pub fn new(out: impl Into<PathBuf>, data: impl Into<PathBuf>, backend: BackendKind) -> Self {
         Self {
             out: out.into(),
-            data: None,
+            data: data.into(),
             steps: None,
             resume: false,
             init: None,
@@ -182,10 +180,7 @@ pub fn train(config: &TrainingConfig, task: &dyn Task, options: &RunOptions) -> 
     }
     let run = options.out.as_path();
     let resumed = prepare_run_folder(run, &config, task, options)?;
-    let data_dir = match &options.data {
-        Some(dir) => dir.clone(),
-        None => ensure_synthetic_dataset(&config.data, options.progress)?,
-    };
+    let data_dir = options.data.clone();
     let reader = DatasetReader::open(&data_dir)?;
     let resolution = config.model.resolution as u32;
     let train = &config.train;
@@ -426,9 +421,8 @@ fn prepare_run_folder(
         }
         fs::create_dir_all(run).map_err(|e| TrainError::io(run, e))?;
         let path = run.join(RUN_CONFIG_FILE);
-        let tmp = run.join(format!("{RUN_CONFIG_FILE}.partial"));
-        fs::write(&tmp, config.to_toml()).map_err(|e| TrainError::io(&tmp, e))?;
-        fs::rename(&tmp, &path).map_err(|e| TrainError::io(&path, e))?;
+        prism_core::files::write_bytes(&path, config.to_toml().as_bytes())
+            .map_err(|e| TrainError::io(&path, e))?;
         return Ok(None);
     }
     let Some(latest) = latest else {
@@ -520,7 +514,7 @@ fn run_validation(
     let (scores, grid) = validator.validate(&model);
     let name = format!("step-{step:08}.png");
     let path = samples_dir.join(&name);
-    write_png(&path, &grid)?;
+    save_png(&path, &grid)?;
     log.write(&json!({
         "step": step,
         "val_psnr": scores.psnr,
@@ -563,7 +557,7 @@ fn step_line(step: usize, values: &StepValues, lr: f64, lr_heads: f64, grad_norm
 }
 
 fn progress_bar(enabled: bool, start: usize, total: usize, name: &str) -> ProgressBar {
-    let bar = crate::progress::progress_bar(
+    let bar = prism_core::progress::progress_bar(
         enabled,
         total as u64,
         "{prefix} {bar:30} {pos}/{len} [{elapsed_precise} < {eta_precise}, {per_sec}] {msg}",

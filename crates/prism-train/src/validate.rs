@@ -2,19 +2,18 @@
 //! "copy the source view" baseline, and a PNG grid of sample predictions.
 
 use std::collections::BTreeMap;
-use std::path::Path;
 
 use burn::module::Module;
 use burn::tensor::{Device, Tensor};
 use image::{Rgb, RgbImage};
-use prism_data::dataset::{
+use prism_data::{
     DatasetReader, PrismBatch, PrismBatcher, Sample, SampleDataset, SplitKind, TargetSelection,
 };
 use prism_losses::{LPIPS_MIN_SIDE, Lpips, psnr, ssim};
 use prism_model::Prism;
 use serde::Serialize;
 
-use crate::error::{Result, TrainError};
+use crate::error::Result;
 
 /// Pairs per forward pass during validation.
 const VALIDATION_BATCH: usize = 8;
@@ -200,18 +199,6 @@ fn grid(rows: &[[Tensor<4>; 3]]) -> RgbImage {
         }
     }
     out
-}
-
-/// Writes a PNG atomically (a temporary file in the same folder, then a rename).
-///
-/// # Errors
-/// I/O errors, naming the file.
-pub fn write_png(path: &Path, image: &RgbImage) -> Result<()> {
-    let tmp = path.with_extension("png.partial");
-    image
-        .save_with_format(&tmp, image::ImageFormat::Png)
-        .map_err(|e| TrainError::io(&tmp, std::io::Error::other(e)))?;
-    std::fs::rename(&tmp, path).map_err(|e| TrainError::io(path, e))
 }
 
 #[cfg(test)]

@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use prism_data::BackendKind;
+use prism_core::BackendKind;
 use prism_train::{
     QuickstartOptions, QuickstartPlan, RunOptions, TeacherTask, TrainingConfig, quickstart,
     quickstart_table, train,
@@ -15,7 +15,7 @@ fn quickstart_trains_evaluates_both_models_and_tabulates() {
     let root = std::env::temp_dir().join(format!("prism-quickstart-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&root);
     // SAFETY: the only test of this binary; set before anything reads it.
-    unsafe { std::env::set_var(prism_train::CACHE_ENV, root.join("cache")) };
+    unsafe { std::env::set_var(prism_synth::CACHE_ENV, root.join("cache")) };
     let mut plan = QuickstartPlan::fast().unwrap();
     plan.config.model.resolution = 32;
     plan.config.losses.lpips = 0.0;
@@ -27,8 +27,10 @@ fn quickstart_trains_evaluates_both_models_and_tabulates() {
     plan.teacher_steps = 3;
     plan.student_steps = 2;
     plan.eval_views = 4;
+    let data = prism_synth::ensure_synthetic_dataset(&plan.config.data, false).unwrap();
     let options = QuickstartOptions {
         out: root.join("out"),
+        data,
         backend: BackendKind::Ndarray,
         lpips_weights: None,
         progress: false,

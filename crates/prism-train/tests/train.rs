@@ -7,11 +7,12 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, MutexGuard, OnceLock};
 
 use burn::tensor::Device;
-use prism_data::BackendKind;
-use prism_data::dataset::PrismBatch;
-use prism_data::synth::{SynthOptions, synth_dataset};
+use prism_core::BackendKind;
+use prism_data::PrismBatch;
+use prism_data::SynthOptions;
 use prism_losses::LossTerms;
 use prism_model::Prism;
+use prism_synth::synth::synth_dataset;
 use prism_train::{
     Checkpoint, RunOptions, StepLoss, Task, TaskData, TeacherTask, TrainError, TrainingConfig,
     list_checkpoints, parameter_values, read_metrics, train,
@@ -36,14 +37,12 @@ fn serial() -> MutexGuard<'static, ()> {
     LOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
-fn options_for(out: &Path) -> RunOptions {
-    RunOptions::new(out, BackendKind::Ndarray)
+fn options_for(out: &Path, data: &Path) -> RunOptions {
+    RunOptions::new(out, data, BackendKind::Ndarray)
 }
 
 fn options(out: &Path) -> RunOptions {
-    let mut o = options_for(out);
-    o.data = Some(dataset());
-    o
+    options_for(out, &dataset())
 }
 
 /// The tiny config at 32 px without LPIPS in the loss (LPIPS backward is slow on ndarray;
@@ -359,8 +358,7 @@ fn teacher_training_learns_views_that_copying_cannot_give() {
         c.train.validation_views = 8;
     });
     let out = tempfile::tempdir().unwrap();
-    let mut o = options(out.path());
-    o.data = Some(data.clone());
+    let o = options_for(out.path(), &data);
     let summary = train(&config, &TeacherTask::default(), &o).unwrap();
     let losses: Vec<f64> = read_metrics(&out.path().join("metrics.jsonl"))
         .unwrap()
@@ -436,8 +434,7 @@ fn geometry_losses_fall_on_synthetic_people() {
         c.train.checkpoint_every = 40;
     });
     let out = tempfile::tempdir().unwrap();
-    let mut o = options_for(out.path());
-    o.data = Some(data.path().to_path_buf());
+    let o = options_for(out.path(), data.path());
     train(&config, &TeacherTask::default(), &o).unwrap();
     let lines: Vec<serde_json::Value> = read_metrics(&out.path().join("metrics.jsonl"))
         .unwrap()

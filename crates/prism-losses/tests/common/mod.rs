@@ -2,7 +2,7 @@
 #![allow(dead_code)]
 
 use burn::tensor::{Device, Tensor, TensorData};
-use prism_data::BackendKind;
+use prism_core::BackendKind;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

@@ -18,7 +18,7 @@ use std::sync::Arc;
 use burn::backend::Dispatch;
 use burn::tensor::{Device, Int, Tensor, TensorData};
 use glam::Vec3;
-use prism_data::Camera;
+use prism_core::Camera;
 
 pub use raster::{BAND_ROWS, NEAR_PLANE};
 

@@ -13,7 +13,7 @@ use std::sync::Arc;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Backend, ExtensionType, Flex, NdArray, TensorMetadata, backend_extension};
 use burn::tensor::TensorData;
-use prism_data::Camera;
+use prism_core::Camera;
 
 use super::{meshes_from_flat, raster};
 use crate::transfer::{to_device, to_host};

@@ -11,7 +11,7 @@
 //! The nearest such point wins. Both orientations are drawn (no back-face culling).
 
 use glam::{DVec3, Mat3, Vec3};
-use prism_data::Camera;
+use prism_core::Camera;
 use rayon::prelude::*;
 
 /// Rows of one unit of parallel work.
@@ -127,7 +127,7 @@ fn render_band(
     y0: usize,
     rows: usize,
     width: usize,
-    out: BandOut,
+    out: BandOut<'_>,
 ) {
     // Largest `1 / z` so far (0: nothing yet).
     let mut best = vec![0.0f64; rows * width];

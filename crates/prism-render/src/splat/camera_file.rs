@@ -13,8 +13,8 @@
 
 use std::path::Path;
 
-use prism_data::Camera;
-use prism_data::dataset::CameraRecord;
+use prism_core::Camera;
+use prism_core::CameraRecord;
 
 use crate::RenderError;
 
@@ -36,8 +36,8 @@ pub fn read_camera(path: impl AsRef<Path>) -> Result<Camera, RenderError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use prism_data::Intrinsics;
-    use prism_data::camera::mat4_to_rows;
+    use prism_core::Intrinsics;
+    use prism_core::camera::mat4_to_rows;
 
     #[test]
     fn a_view_round_trips_and_bad_values_are_named() {

@@ -23,7 +23,7 @@ use burn::backend::tensor::FloatTensor;
 use burn::backend::{
     Autodiff, Backend, ExtensionType, Flex, NdArray, TensorMetadata, backend_extension,
 };
-use prism_data::Camera;
+use prism_core::Camera;
 
 use super::host::{self, CameraTape, HostGaussians};
 use crate::transfer::{to_device, to_host};

@@ -22,7 +22,6 @@ use burn::tensor::{Device, Tensor, TensorData};
 
 use super::render::Gaussians;
 use crate::RenderError;
-use crate::files::write_atomically;
 
 /// `Y_0^0 = 1 / (2 sqrt(pi))`: colour `= 0.5 + SH_C0 * f_dc` for the degree-0 term.
 pub const SH_C0: f32 = 0.282_094_8;
@@ -425,7 +424,7 @@ impl GaussianCloud {
     pub fn write(&self, path: impl AsRef<Path>) -> Result<(), RenderError> {
         let path = path.as_ref();
         let bytes = self.to_bytes().map_err(|m| RenderError::format(path, m))?;
-        write_atomically(path, &bytes)
+        prism_core::files::write_bytes(path, &bytes).map_err(|e| RenderError::io(path, e))
     }
 }
 

@@ -4,7 +4,7 @@ use std::sync::Arc;
 
 use burn::backend::Dispatch;
 use burn::tensor::{Tensor, TensorData};
-use prism_data::Camera;
+use prism_core::Camera;
 
 use super::op::{SplatBackend, SplatCameras, SplatInputs};
 use crate::RenderError;

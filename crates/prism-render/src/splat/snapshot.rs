@@ -4,12 +4,11 @@ use std::path::Path;
 
 use burn::tensor::Device;
 use image::RgbImage;
-use prism_data::Camera;
+use prism_core::Camera;
 
 use super::ply::GaussianCloud;
 use super::render::{background as background_tensor, render};
 use crate::RenderError;
-use crate::files::write_atomically;
 
 /// Parses a background colour `R,G,B` with components in [0, 1].
 ///
@@ -50,19 +49,7 @@ pub fn render_cloud(
     cloud.check().map_err(RenderError::Input)?;
     let rendered = render(&cloud.to_gaussians(device), &[*camera])?;
     let image = rendered.over(background_tensor(&background, device));
-    let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
-    let values = image
-        .into_data()
-        .convert::<f32>()
-        .try_to_vec::<f32>()
-        .map_err(|e| RenderError::Input(format!("reading the rendered image: {e:?}")))?;
-    let plane = (w * h) as usize;
-    Ok(RgbImage::from_fn(w, h, |x, y| {
-        let i = (y * w + x) as usize;
-        image::Rgb(std::array::from_fn(|c| {
-            (values[c * plane + i].clamp(0.0, 1.0) * 255.0).round() as u8
-        }))
-    }))
+    Ok(prism_core::images::HostImages::from_tensor(image).rgb8(0))
 }
 
 /// Saves an image as PNG, atomically.
@@ -70,12 +57,5 @@ pub fn render_cloud(
 /// # Errors
 /// [`RenderError::Io`] naming the file.
 pub fn save_png(image: &RgbImage, path: &Path) -> Result<(), RenderError> {
-    let mut bytes = Vec::new();
-    image
-        .write_to(
-            &mut std::io::Cursor::new(&mut bytes),
-            image::ImageFormat::Png,
-        )
-        .map_err(|e| RenderError::io(path, std::io::Error::other(e)))?;
-    write_atomically(path, &bytes)
+    prism_core::images::save_png(path, image).map_err(|e| RenderError::io(path, e))
 }

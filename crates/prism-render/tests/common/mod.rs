@@ -5,7 +5,7 @@ use std::sync::{Mutex, MutexGuard};
 
 use burn::tensor::{Device, Tensor, TensorData};
 use glam::{Mat4, Vec3};
-use prism_data::{BackendKind, Camera, Intrinsics};
+use prism_core::{BackendKind, Camera, Intrinsics};
 use prism_render::splat::Gaussians;
 
 /// The ndarray device the acceptance tests run on.

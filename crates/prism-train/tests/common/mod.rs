@@ -8,10 +8,9 @@ use std::path::Path;
 
 use glam::Vec3;
 use image::{Luma, Rgb, Rgb32FImage};
-use prism_data::dataset::{
-    CameraRecord, DatasetMeta, DatasetWriter, Mask, PointMap, Split, SubjectRecord,
-};
-use prism_data::{Camera, Intrinsics, ViewingProtocol};
+use prism_core::CameraRecord;
+use prism_core::{Camera, Intrinsics, ViewingProtocol};
+use prism_data::{DatasetMeta, DatasetWriter, Mask, PointMap, Split, SubjectRecord};
 use prism_train::{TrainingConfig, configs_dir};
 
 struct Blob {

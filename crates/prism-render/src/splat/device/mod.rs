@@ -32,7 +32,7 @@ use crate::launch::{cameras_tensor, elementwise, prepared, require_float_atomics
 use self::kernels::{BLOCK, GRAD_HEAD, PROJECTED};
 use super::host::{TILE_SIZE, view::View};
 use super::op::{SplatCameras, SplatInputs, SplatInputsMetadata};
-use prism_data::Camera;
+use prism_core::Camera;
 
 /// What the reverse pass reads from the forward pass, as device tensors.
 #[derive(ExtensionType, Clone, Debug)]

@@ -8,7 +8,7 @@ pub mod project;
 pub mod raster;
 pub mod view;
 
-use prism_data::Camera;
+use prism_core::Camera;
 use rayon::prelude::*;
 
 use project::{Params, Projected, ProjectedGrads, project, project_backward};

@@ -334,7 +334,7 @@ fn quat_backward(q: [f32; 4], g: &Mat3) -> [f32; 4] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use prism_data::{Camera, Intrinsics};
+    use prism_core::{Camera, Intrinsics};
 
     fn view() -> View {
         let k = Intrinsics {

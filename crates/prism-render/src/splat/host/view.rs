@@ -1,7 +1,7 @@
 //! A camera prepared for rasterization: world-to-camera transform, intrinsics, tile grid.
 
 use glam::{Mat3, Vec3};
-use prism_data::Camera;
+use prism_core::Camera;
 
 use super::TILE_SIZE;
 

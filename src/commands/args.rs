@@ -1,0 +1,170 @@
+//! The flags several commands share, as clap `Args` structs flattened into each command, and
+//! the one place where a command turns "no `--data`" into the config's synthetic dataset.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use clap::Args;
+use prism_core::BackendKind;
+use prism_data::SynthOptions;
+use prism_synth::ensure_synthetic_dataset;
+use prism_train::{Checkpoint, RunOptions, RunSummary, ValidationScores};
+
+/// Where a command's dataset comes from.
+#[derive(Args, Clone, Debug)]
+pub struct DataArgs {
+    /// Dataset folder (see FORMAT.md) [default: the config's `[data]` synthetic dataset,
+    /// synthesised once into the cache folder ($PRISM_CACHE_DIR or ~/.cache/prism) and reused].
+    #[arg(long, value_name = "DIR")]
+    pub data: Option<PathBuf>,
+}
+
+impl DataArgs {
+    /// The `--data` folder, or the synthetic dataset `synth` describes (synthesised into the
+    /// cache the first time, with a progress bar when `progress`).
+    ///
+    /// # Errors
+    /// Synthesis errors, naming the file.
+    pub fn resolve(&self, synth: &SynthOptions, progress: bool) -> anyhow::Result<PathBuf> {
+        match &self.data {
+            Some(dir) => Ok(dir.clone()),
+            None => ensure_synthetic_dataset(synth, progress)
+                .context("synthesising the config's default dataset"),
+        }
+    }
+
+    /// As [`DataArgs::resolve`], with the `[data]` section of the config a checkpoint (or a run
+    /// folder's latest) was trained with.
+    ///
+    /// # Errors
+    /// An unreadable checkpoint, or synthesis errors.
+    pub fn resolve_for_checkpoint(
+        &self,
+        checkpoint: &Path,
+        progress: bool,
+    ) -> anyhow::Result<PathBuf> {
+        if let Some(dir) = &self.data {
+            return Ok(dir.clone());
+        }
+        let config = Checkpoint::read(checkpoint)?.config;
+        self.resolve(&config.data, progress)
+    }
+}
+
+/// Backend, LPIPS weights and progress: what every job that runs the model takes.
+#[derive(Args, Clone, Debug)]
+pub struct JobArgs {
+    /// Backend: ndarray, flex or wgpu.
+    #[arg(long, default_value = "flex")]
+    pub backend: BackendKind,
+    /// The LPIPS weight file [default: $PRISM_LPIPS_WEIGHTS, then data/lpips_alex.safetensors].
+    #[arg(long, value_name = "FILE")]
+    pub lpips_weights: Option<PathBuf>,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// The flags of a training run, shared by `train-teacher` and `distill-student`.
+#[derive(Args, Clone, Debug)]
+pub struct RunArgs {
+    #[command(flatten)]
+    pub data: DataArgs,
+    /// Run folder for the config copy, metrics.jsonl, sample grids and checkpoints
+    /// [default: runs/<job>-<config name>].
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Train this many steps instead of the config's (with --resume: the new total, to train
+    /// longer).
+    #[arg(long, value_name = "N")]
+    pub steps: Option<usize>,
+    /// Continue the run in the run folder from its latest checkpoint, exactly where it stopped.
+    #[arg(long)]
+    pub resume: bool,
+    /// Devices to train on, data parallel (on the CPU backends: worker threads sharing the one
+    /// CPU device).
+    #[arg(long, default_value_t = 1, value_name = "N")]
+    pub devices: usize,
+    #[command(flatten)]
+    pub job: JobArgs,
+}
+
+impl RunArgs {
+    /// The trainer's options: the run folder (`--out` or `default_out`) and the dataset
+    /// (`--data` or `synth`'s, synthesised if needed).
+    ///
+    /// # Errors
+    /// Synthesis errors.
+    pub fn options(
+        &self,
+        default_out: PathBuf,
+        synth: &SynthOptions,
+    ) -> anyhow::Result<RunOptions> {
+        let progress = !self.job.quiet;
+        Ok(RunOptions {
+            steps: self.steps,
+            resume: self.resume,
+            devices: self.devices,
+            progress,
+            lpips_weights: self.job.lpips_weights.clone(),
+            ..RunOptions::new(
+                self.out.clone().unwrap_or(default_out),
+                self.data.resolve(synth, progress)?,
+                self.job.backend,
+            )
+        })
+    }
+}
+
+/// Prints what a training run did: steps and speed, the loss, the validations (`rows`: the
+/// labels of the baseline, initial and last one), the sample grid, checkpoint and curves.
+pub fn print_summary(summary: &RunSummary, labels: [&str; 2]) {
+    println!(
+        "trained steps {}..{} on {} ({:.3} s per step)",
+        summary.start_step,
+        summary.steps,
+        summary.data_dir.display(),
+        summary.seconds_per_step
+    );
+    if let (Some(first), Some(last)) = (summary.first_loss, summary.last_loss) {
+        println!("training loss {first:.5} -> {last:.5}");
+    }
+    if summary.skipped_steps > 0 {
+        println!(
+            "{} steps skipped (non-finite loss or gradient)",
+            summary.skipped_steps
+        );
+    }
+    let row = |name: &str, s: &ValidationScores| {
+        println!(
+            "{name:<28} PSNR {:>7.3} dB  SSIM {:.4}  LPIPS {:.4}",
+            s.psnr, s.ssim, s.lpips
+        );
+    };
+    let [baseline, initial] = labels;
+    if let Some(s) = &summary.baseline {
+        row(baseline, s);
+    }
+    if let Some(s) = &summary.initial {
+        row(initial, s);
+    }
+    if let Some(s) = &summary.last {
+        row(&format!("validation at step {}", summary.steps), s);
+    }
+    if let Some(path) = &summary.last_samples {
+        println!(
+            "sample images (source | prediction | ground truth): {}",
+            path.display()
+        );
+    }
+    if let Some(path) = &summary.last_checkpoint {
+        println!("checkpoint: {}", path.display());
+    }
+    println!(
+        "metrics: {}",
+        summary.run_dir.join(prism_train::METRICS_FILE).display()
+    );
+    if let Some(path) = &summary.plot {
+        println!("training curves: {}", path.display());
+    }
+}
