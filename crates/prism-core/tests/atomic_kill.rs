@@ -1,0 +1,99 @@
+//! The atomic writer under SIGKILL: a child process rewrites one file in a loop through
+//! `prism_core::files::write_atomic` and is killed at arbitrary moments; every time, the file
+//! is one complete version (the old one or a new one) and nothing else is left in its folder.
+
+use std::io::Write;
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use prism_core::files::{write_atomic, write_bytes};
+
+/// The variable that turns [`child_rewrites_the_file_forever`] on and names its file.
+const TARGET_ENV: &str = "PRISM_ATOMIC_KILL_TARGET";
+/// Bytes of one version: an 8-byte version number, then the payload.
+const PAYLOAD: usize = 4 << 20;
+const CHUNK: usize = 64 << 10;
+
+/// The payload byte of version `v`.
+fn fill(v: u64) -> u8 {
+    (v % 251) as u8 + 1
+}
+
+/// Checks that `path` holds one whole version and returns its number.
+fn complete_version(path: &Path) -> u64 {
+    let bytes = std::fs::read(path).unwrap();
+    assert_eq!(bytes.len(), 8 + PAYLOAD, "a partial file: {} bytes", bytes.len());
+    let v = u64::from_le_bytes(bytes[..8].try_into().unwrap());
+    assert!(
+        bytes[8..].iter().all(|&b| b == fill(v)),
+        "version {v} mixed with another"
+    );
+    v
+}
+
+fn write_version(out: &mut dyn Write, v: u64) -> std::io::Result<()> {
+    out.write_all(&v.to_le_bytes())?;
+    let chunk = vec![fill(v); CHUNK];
+    for _ in 0..PAYLOAD / CHUNK {
+        out.write_all(&chunk)?;
+    }
+    Ok(())
+}
+
+/// Not a test of its own: the child process of [`a_killed_writer_leaves_the_old_or_the_new_file`]
+/// (ignored, and a no-op without [`TARGET_ENV`]).
+#[test]
+#[ignore = "run as a child process by a_killed_writer_leaves_the_old_or_the_new_file"]
+fn child_rewrites_the_file_forever() {
+    let Some(path) = std::env::var_os(TARGET_ENV) else {
+        return;
+    };
+    let path = Path::new(&path);
+    let mut v = complete_version(path);
+    loop {
+        v += 1;
+        write_atomic(path, |out| write_version(out, v)).unwrap();
+    }
+}
+
+#[test]
+fn a_killed_writer_leaves_the_old_or_the_new_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("state.bin");
+    let mut first = Vec::new();
+    write_version(&mut first, 0).unwrap();
+    write_bytes(&path, &first).unwrap();
+    let mut seed = 0x2545_f491_u64;
+    let (mut changed, mut kept) = (0, 0);
+    for round in 0..12 {
+        let before = complete_version(&path);
+        let mut child = Command::new(std::env::current_exe().unwrap())
+            .args(["--exact", "child_rewrites_the_file_forever", "--ignored"])
+            .env(TARGET_ENV, &path)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        // Kill after 5 to 60 ms of writing (a version takes a few ms): mid-write or between.
+        seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+        let wait = Duration::from_millis(5 + (seed >> 33) % 56);
+        let start = Instant::now();
+        while start.elapsed() < wait {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        child.kill().unwrap(); // SIGKILL on Unix: no destructor, no cleanup runs.
+        child.wait().unwrap();
+        let after = complete_version(&path);
+        assert!(after >= before, "round {round}: went back from {before} to {after}");
+        if after > before { changed += 1 } else { kept += 1 }
+        let names: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names, ["state.bin"], "round {round}: leftovers beside the file");
+    }
+    // The child did write: some rounds ended on a newer version (the others were killed
+    // before their first rename completed).
+    assert!(changed > 0, "no round got past a write ({kept} kept the old file)");
+}
