@@ -488,7 +488,7 @@ fn another_config_and_a_missing_3dgs_head_are_one_clear_line() {
     let mut no_gs = tiny_config();
     no_gs.model.gs_head = false;
     // tiny.toml's NVS decoder corrects the 3DGS render: without the head, the paper's decoder.
-    no_gs.model.nvs_output = prism_model::head::NvsOutput::Direct;
+    no_gs.model.nvs_output = prism_model::NvsOutput::Direct;
     no_gs.losses.gs = 0.0;
     no_gs.train.steps = 1;
     no_gs.train.checkpoint_every = 1;

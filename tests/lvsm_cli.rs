@@ -9,8 +9,7 @@ use std::process::{Command, Output};
 use burn::module::{Module, ModuleVisitor, Param, ParamId};
 use burn::tensor::Tensor;
 use prism_core::BackendKind;
-use prism_model::gaussian_head::{GsColour, GsDepth};
-use prism_model::head::NvsOutput;
+use prism_model::{GsColour, GsDepth, NvsOutput};
 use prism_train::{TrainingConfig, configs_dir, heads_group_with, latest_checkpoint, load_model};
 
 fn scratch(test: &str) -> PathBuf {

@@ -10,7 +10,7 @@ pub struct SmplxParams {
     pub beta: Tensor<2>,
     /// Pose `theta`, flattened per subject: 55 joints x 3 axis-angle (`[B, 165]`), or, as the
     /// teacher's objective uses it, 55 rotation matrices (`[B, 495]`, see
-    /// `prism_model::smplx_branch`: matrices compare smoothly where axis-angle vectors jump).
+    /// `prism_model::SmplxBranch`: matrices compare smoothly where axis-angle vectors jump).
     pub theta: Tensor<2>,
     /// Expression `psi`, `[B, 10]`.
     pub psi: Tensor<2>,

@@ -12,11 +12,11 @@ use burn::config::Config;
 use serde::de::{self, Deserializer, SeqAccess, Visitor};
 use serde::{Deserialize, Serialize, Serializer};
 
-use crate::attention::{AttentionKind, FeatureMap};
 use crate::distill::DistillConfig;
 use crate::error::ModelError;
-use crate::gaussian_head::{GsColour, GsDepth};
-use crate::head::NvsOutput;
+use crate::heads::gaussian::{GsColour, GsDepth};
+use crate::heads::nvs::NvsOutput;
+use crate::stages::attention::{AttentionKind, FeatureMap};
 
 /// The attention kind of every transformer block, as written in a config file.
 ///
@@ -174,8 +174,8 @@ pub struct PrismConfig {
     #[config(default = "String::from(\"procedural:0\")")]
     pub body_model: String,
     /// World height in metres given to the predicted posed body when it is placed from the
-    /// weak-perspective camera (see `placement.rs`; 1.77 for the procedural people scaled to
-    /// 1.80 m with hair and shoes).
+    /// weak-perspective camera (see `geometry/smplx/placement.rs`; 1.77 for the procedural
+    /// people scaled to 1.80 m with hair and shoes).
     #[config(default = 1.77)]
     pub body_height: f64,
     /// Width of the SMPL-X branch's adapter and regressor.
@@ -198,11 +198,12 @@ pub struct PrismConfig {
     #[config(default = 2.0)]
     pub depth_prior: f64,
     /// Initial value of the gates `g_smpl` and `g_pts` (`g_res` starts at 0). Not 0: behind a
-    /// zero-initialised convolution a zero gate never receives a gradient (see `injection.rs`).
+    /// zero-initialised convolution a zero gate never receives a gradient (see
+    /// `geometry/injection.rs`).
     #[config(default = 1.0)]
     pub gate_init: f64,
     /// The 3DGS head's colours: `"regressed"` (the paper) or `"source"`, the source pixel's
-    /// colour plus a learned correction (see `gaussian_head.rs`).
+    /// colour plus a learned correction (see `heads/gaussian.rs`).
     #[config(default = "GsColour::Regressed")]
     pub gs_colour: GsColour,
     /// The 3DGS head's distances: `"head"` (the paper) or `"points"`, the point branch's
@@ -215,7 +216,7 @@ pub struct PrismConfig {
     #[config(default = 1.0)]
     pub gs_scale: f64,
     /// Start the 3DGS head's opacities from a key of the source image on the background colour
-    /// (background pixels transparent, the person opaque; see `gaussian_head.rs`).
+    /// (background pixels transparent, the person opaque; see `heads/gaussian.rs`).
     #[config(default = false)]
     pub gs_keying: bool,
     /// The NVS decoder's output: `"direct"` (the paper: `sigmoid` of the regressed colours) or
@@ -339,7 +340,7 @@ impl PrismConfig {
             );
         }
         if self.smplx_branch {
-            crate::body_model::check_body_model(&self.body_model)?;
+            crate::geometry::smplx::body_model::check_body_model(&self.body_model)?;
         }
         self.attention_kinds().map(|_| ())
     }
@@ -415,20 +416,25 @@ pub fn load_config(path: impl AsRef<Path>) -> Result<ModelConfigFile, ModelError
     parse_config(&text, path)
 }
 
-/// One line for a TOML error: `line L: message (in [section])`.
-fn describe_toml_error(text: &str, err: &toml::de::Error) -> String {
+/// One line for an error of `toml` in `text`: `line L: message (in [section])`, the section
+/// being the innermost `[section]` header at or before the error; without a position, the
+/// message alone. Every section of a config file reports its errors this way, whichever crate
+/// parses it.
+pub fn describe_toml_error(text: &str, err: &toml::de::Error) -> String {
     let message = err.message().trim().to_string();
     let Some(span) = err.span() else {
         return message;
     };
-    let before = &text[..span.start.min(text.len())];
+    let start = span.start.min(text.len());
+    let before = &text[..start];
     let line = before.matches('\n').count() + 1;
     // The innermost `[section]` header at or before the error.
     let section = before
         .lines()
-        .chain(text[span.start.min(text.len())..].lines().take(1))
+        .chain(text[start..].lines().take(1))
         .filter_map(|l| {
-            let l = l.trim();
+            // A header may carry a comment: `[train]  # ...`.
+            let l = l.split('#').next().unwrap_or("").trim();
             (l.starts_with('[') && l.ends_with(']')).then(|| l.to_string())
         })
         .last();
@@ -609,5 +615,28 @@ lr = 1e-4
             .unwrap_err()
             .to_string();
         assert!(err.contains("/nonexistent/prism.toml"), "{err}");
+    }
+
+    /// [`describe_toml_error`] (which the other crates' sections use too) names the line and
+    /// the section, also under a header that carries a comment.
+    #[test]
+    fn toml_errors_name_the_line_and_the_section() {
+        let describe = |text: &str| {
+            let err = toml::from_str::<ModelConfigFile>(text).unwrap_err();
+            describe_toml_error(text, &err)
+        };
+        let mistyped = TINY_MODEL.replace("heads = 4", "heads = \"four\"");
+        let plain = describe(&mistyped);
+        assert!(
+            plain.starts_with("line 4: ") && plain.ends_with(" (in [model])"),
+            "{plain}"
+        );
+        let commented = describe(&mistyped.replace("[model]", "[model]  # the network"));
+        assert_eq!(commented, plain);
+        let missing = describe(&TINY_MODEL.replace("group_size = 3\n", ""));
+        assert!(
+            missing.contains("group_size") && missing.matches("[distill]").count() == 1,
+            "{missing}"
+        );
     }
 }

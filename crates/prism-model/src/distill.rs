@@ -7,8 +7,8 @@ use burn::config::Config;
 use serde::de::{self, Deserializer, SeqAccess, Visitor};
 use serde::{Deserialize, Serialize, Serializer};
 
-use crate::attention::AttentionKind;
 use crate::error::ModelError;
+use crate::stages::attention::AttentionKind;
 
 /// The layers whose hidden states enter `L_distill`, as written in a config file: a count
 /// (that many uniformly spaced blocks, see [`DistillLayers::resolve`]) or an explicit list of

@@ -36,7 +36,7 @@ pub enum ModelError {
     /// Exporting predicted Gaussians failed.
     #[error("{0}")]
     Render(#[from] prism_render::RenderError),
-    /// An LVSM checkpoint that cannot be read, or does not fit the config (see `lvsm.rs`).
+    /// An LVSM checkpoint that cannot be read, or does not fit the config (see `tools/lvsm.rs`).
     #[error("LVSM checkpoint {path}: {message}")]
     Lvsm {
         /// The checkpoint file.

@@ -5,7 +5,7 @@
 //! `T` tokens); the geometry parts read camera math and body models that want `f32`. Stage I
 //! and stage III cast their input to the blocks' dtype once and their output (and any hidden
 //! state taken out) back to `f32`. Linear attention accumulates in `f32` whatever the dtype
-//! (see [`crate::linear_attention`]).
+//! (see [`crate::stages::attention::linear_attention`]).
 
 use std::fmt;
 use std::str::FromStr;
@@ -14,6 +14,7 @@ use burn::module::{Module, ModuleMapper, Param};
 use burn::tensor::{DType, Device, FloatDType, Tensor};
 
 use crate::prism::Prism;
+use crate::stages::cast;
 
 /// The floating-point precision of the transformer blocks at inference.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
@@ -75,16 +76,6 @@ impl ModuleMapper for CastParams {
     fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
         let dtype = self.0;
         param.map(|t| cast(t, dtype))
-    }
-}
-
-/// `x` in `dtype` (no op when it already is).
-pub(crate) fn cast<const D: usize>(x: Tensor<D>, dtype: impl Into<DType>) -> Tensor<D> {
-    let dtype = dtype.into();
-    if x.dtype() == dtype {
-        x
-    } else {
-        x.cast(FloatDType::from(dtype))
     }
 }
 

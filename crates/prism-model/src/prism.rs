@@ -5,17 +5,17 @@ use burn::module::Module;
 use burn::tensor::{Device, Tensor};
 use prism_data::PrismBatch;
 
-use crate::attention::AttentionKind;
-use crate::block::{PrismBlock, PrismBlockConfig};
-use crate::body_model::load_body_model;
 use crate::config::PrismConfig;
-use crate::dpt::dpt_taps;
 use crate::error::ModelError;
-use crate::gaussian_head::{GaussianHead, GaussianHeadConfig, GaussianOutput, SourcePixels};
-use crate::head::{NvsHead, NvsHeadConfig};
-use crate::injection::{Injection, InjectionConfig};
-use crate::point_branch::{PointBranch, PointBranchConfig, PointOutput};
-use crate::smplx_branch::{SmplxBranch, SmplxBranchConfig, SmplxOutput};
+use crate::geometry::injection::{Injection, InjectionConfig};
+use crate::geometry::points::dpt::dpt_taps;
+use crate::geometry::points::{PointBranch, PointBranchConfig, PointOutput};
+use crate::geometry::smplx::body_model::load_body_model;
+use crate::geometry::smplx::{SmplxBranch, SmplxBranchConfig, SmplxOutput};
+use crate::heads::gaussian::{GaussianHead, GaussianHeadConfig, GaussianOutput, SourcePixels};
+use crate::heads::nvs::{NvsHead, NvsHeadConfig};
+use crate::stages::attention::AttentionKind;
+use crate::stages::block::{PrismBlock, PrismBlockConfig};
 use crate::stages::{HiddenStates, StageOne, StageThree};
 use crate::tokenizer::{Tokenizer, TokenizerConfig};
 use crate::views::Views;
@@ -227,7 +227,7 @@ impl Prism {
     /// pass then skips, unless the NVS decoder corrects its render (`nvs_output =
     /// "residual"`), in which case it is part of the prediction and stays.
     pub fn without_training_heads(mut self) -> Self {
-        if self.nvs_head.output() != crate::head::NvsOutput::Residual {
+        if self.nvs_head.output() != crate::heads::nvs::NvsOutput::Residual {
             self.gs_head = None;
         }
         self
@@ -436,8 +436,8 @@ impl Prism {
 mod tests {
     use super::*;
     use crate::config::load_config;
-    use crate::info::ParameterCounts;
     use crate::test_util::{inputs, max_abs_diff, ndarray, parameters, tiny_with, values};
+    use crate::tools::info::ParameterCounts;
     use burn::module::{ModuleVisitor, Param};
     use burn::tensor::Distribution;
     use burn::tensor::Gradients;
@@ -459,7 +459,7 @@ mod tests {
         let device = ndarray().autodiff();
         device.seed(9);
         let geometric = shipped("tiny");
-        assert_eq!(geometric.nvs_output, crate::head::NvsOutput::Residual);
+        assert_eq!(geometric.nvs_output, crate::heads::nvs::NvsOutput::Residual);
         let model = geometric.init(&device);
         let x = inputs(2, 64, 64, &device);
         let out = forward(&model, &x, &[]);
@@ -730,7 +730,7 @@ mod tests {
     /// Gives the zero convolutions random weights (as after some training).
     fn trained_injection(model: Prism, device: &Device) -> Prism {
         let mut model = model;
-        let randomise = |conv: &mut Option<crate::injection::ZeroConv>| {
+        let randomise = |conv: &mut Option<crate::geometry::injection::ZeroConv>| {
             if let Some(conv) = conv {
                 let [i, o] = conv.linear.weight.dims();
                 conv.linear.weight = Param::from_tensor(Tensor::random(

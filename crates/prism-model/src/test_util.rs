@@ -4,14 +4,14 @@ use burn::module::Module;
 use burn::tensor::{Device, Tensor};
 
 /// The ndarray device (the backend every test must pass on).
-pub fn ndarray() -> Device {
+pub(crate) fn ndarray() -> Device {
     prism_core::BackendKind::Ndarray
         .device()
         .expect("ndarray is compiled in")
 }
 
 /// The values of a tensor.
-pub fn values<const D: usize>(t: &Tensor<D>) -> Vec<f32> {
+pub(crate) fn values<const D: usize>(t: &Tensor<D>) -> Vec<f32> {
     t.to_data()
         .convert::<f32>()
         .try_to_vec::<f32>()
@@ -19,7 +19,7 @@ pub fn values<const D: usize>(t: &Tensor<D>) -> Vec<f32> {
 }
 
 /// The largest absolute difference between two equally long slices.
-pub fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
+pub(crate) fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
     assert_eq!(a.len(), b.len(), "lengths differ");
     a.iter()
         .zip(b)
@@ -28,8 +28,8 @@ pub fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
 }
 
 /// Every float parameter of a module as (path, values), in visiting order.
-pub fn parameters<M: Module>(module: &M) -> Vec<(String, Vec<f32>)> {
-    crate::info::named_parameters(module)
+pub(crate) fn parameters<M: Module>(module: &M) -> Vec<(String, Vec<f32>)> {
+    crate::tools::info::named_parameters(module)
         .into_iter()
         .map(|(path, t)| (path, values(&t)))
         .collect()
@@ -37,7 +37,7 @@ pub fn parameters<M: Module>(module: &M) -> Vec<(String, Vec<f32>)> {
 
 /// Protocol-like views of `b` pairs at `h x w`: the frontal source camera and targets at
 /// several yaw and pitch angles on the 2 m orbit, grey background.
-pub fn views(b: usize, h: usize, w: usize) -> crate::Views {
+pub(crate) fn views(b: usize, h: usize, w: usize) -> crate::Views {
     use prism_core::{Camera, Intrinsics};
     let k = Intrinsics::protocol_default(w as u32, h as u32);
     let centre = glam::Vec3::new(0.0, 0.9, 0.0);
@@ -58,7 +58,12 @@ pub fn views(b: usize, h: usize, w: usize) -> crate::Views {
 
 /// A batch of `b` (source image, source rays, target rays) at `h x w`: a random image and the
 /// rays of [`views`].
-pub fn inputs(b: usize, h: usize, w: usize, device: &Device) -> ([Tensor<4>; 3], crate::Views) {
+pub(crate) fn inputs(
+    b: usize,
+    h: usize,
+    w: usize,
+    device: &Device,
+) -> ([Tensor<4>; 3], crate::Views) {
     use burn::tensor::Distribution;
     let views = views(b, h, w);
     device.seed(11);
@@ -69,7 +74,7 @@ pub fn inputs(b: usize, h: usize, w: usize, device: &Device) -> ([Tensor<4>; 3],
 }
 
 /// The tiny config with the geometry switches set.
-pub fn tiny_with(smplx: bool, points: bool, gs: bool) -> crate::PrismConfig {
+pub(crate) fn tiny_with(smplx: bool, points: bool, gs: bool) -> crate::PrismConfig {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/tiny.toml");
     let mut config = crate::load_config(path)
         .expect("tiny config")

@@ -314,7 +314,7 @@ fn the_paper_config_fits_the_published_layout() {
     let tensors = shapes
         .into_iter()
         .map(|(name, shape)| {
-            let tensor = prism_model::lvsm::LvsmTensor {
+            let tensor = prism_model::LvsmTensor {
                 shape,
                 values: Vec::new(),
             };

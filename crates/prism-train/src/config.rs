@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use burn::config::Config;
 use prism_data::SynthOptions;
 use prism_losses::LossWeights;
-use prism_model::{DistillConfig, PrismConfig};
+use prism_model::{DistillConfig, PrismConfig, describe_toml_error};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Result, TrainError};
@@ -230,32 +230,6 @@ impl TrainingConfig {
             );
         }
         Ok(())
-    }
-}
-
-/// One line for a TOML error: `line L: message (in [section])` (as prism-model's loader).
-fn describe_toml_error(text: &str, err: &toml::de::Error) -> String {
-    let message = err.message().trim().to_string();
-    let Some(span) = err.span() else {
-        return message;
-    };
-    let start = span.start.min(text.len());
-    let before = &text[..start];
-    let line = before.matches('\n').count() + 1;
-    let section = before
-        .lines()
-        .chain(text[start..].lines().take(1))
-        .filter_map(|l| {
-            // A header may carry a comment: `[train]  # ...`.
-            let l = l.split('#').next().unwrap_or("").trim();
-            (l.starts_with('[') && l.ends_with(']')).then(|| l.to_string())
-        })
-        .last();
-    match section {
-        Some(section) if !message.contains(&section) => {
-            format!("line {line}: {message} (in {section})")
-        }
-        _ => format!("line {line}: {message}"),
     }
 }
 

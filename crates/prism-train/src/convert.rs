@@ -1,5 +1,5 @@
 //! `prism convert lvsm`: a pretrained LVSM decoder-only checkpoint as a prism checkpoint
-//! folder (the mapping is `prism_model::lvsm`'s).
+//! folder (the mapping is `prism_model::LvsmCheckpoint::convert`'s).
 
 use std::path::Path;
 

@@ -134,8 +134,8 @@ mod tests {
             .with_smplx_branch(false)
             .with_point_branch(false)
             .with_gs_head(false)
-            .with_gs_depth(prism_model::gaussian_head::GsDepth::Head)
-            .with_nvs_output(prism_model::head::NvsOutput::Direct);
+            .with_gs_depth(prism_model::GsDepth::Head)
+            .with_nvs_output(prism_model::NvsOutput::Direct);
         let device = prism_core::BackendKind::Ndarray
             .device()
             .unwrap()

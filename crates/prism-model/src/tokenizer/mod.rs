@@ -1,20 +1,22 @@
 //! The tokenizer (paper Sec. 3.1): source and target patches to the input sequence `T_in`.
 
+pub(crate) mod patch;
+
 use burn::config::Config;
 use burn::module::Module;
 use burn::nn::{Initializer, LayerNorm, LayerNormConfig, Linear, LinearConfig};
 use burn::tensor::{Device, Tensor};
 
-use crate::patch::patchify;
+use patch::patchify;
 
 /// Channels of a source pixel: `[2I - 1 (3), P_s (6)]`.
-pub const SOURCE_CHANNELS: usize = 9;
+pub(crate) const SOURCE_CHANNELS: usize = 9;
 /// Channels of a target pixel: `P_t (6)`.
-pub const TARGET_CHANNELS: usize = 6;
+pub(crate) const TARGET_CHANNELS: usize = 6;
 
 /// Configuration of a [`Tokenizer`].
 #[derive(Config, Debug)]
-pub struct TokenizerConfig {
+pub(crate) struct TokenizerConfig {
     /// Token width `d`.
     pub width: usize,
     /// Patch size `p`.
@@ -29,7 +31,7 @@ pub struct TokenizerConfig {
 
 impl TokenizerConfig {
     /// Builds the tokenizer.
-    pub fn init(&self, device: &Device) -> Tokenizer {
+    pub(crate) fn init(&self, device: &Device) -> Tokenizer {
         let features = self.patch_size * self.patch_size;
         let linear = |channels: usize| {
             LinearConfig::new(features * channels, self.width)

@@ -12,7 +12,7 @@ use burn::tensor::Tensor;
 const NORM_EPS: f32 = 1e-8;
 
 /// The 6D of the identity: `a_1 = (1, 0, 0)`, `a_2 = (0, 1, 0)`.
-pub const IDENTITY_6D: [f32; 6] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+pub(crate) const IDENTITY_6D: [f32; 6] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0];
 
 /// `[..., 3]` vectors divided by their length (with a small `eps` for stability).
 fn normalise(v: Tensor<3>) -> Tensor<3> {
@@ -25,7 +25,7 @@ fn normalise(v: Tensor<3>) -> Tensor<3> {
 
 /// Rotation matrices `[B, J, 3, 3]` from 6D vectors `[B, J, 6]` laid out as `(a_1, a_2)`
 /// (see the module docs). Differentiable.
-pub fn rotation_6d_to_matrix(x: Tensor<3>) -> Tensor<4> {
+pub(crate) fn rotation_6d_to_matrix(x: Tensor<3>) -> Tensor<4> {
     let [b, j, six] = x.dims();
     assert_eq!(six, 6, "6D rotations must have 6 components, got {six}");
     let a1 = x.clone().narrow(2, 0, 3);

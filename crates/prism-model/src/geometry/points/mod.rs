@@ -17,6 +17,8 @@
 //! (`F + 2` channels: the composited features, the coverage and the depth offset of the
 //! visible points in the target camera).
 
+pub(crate) mod dpt;
+
 use burn::config::Config;
 use burn::module::Module;
 use burn::tensor::Device;
@@ -24,18 +26,18 @@ use burn::tensor::Tensor;
 use burn::tensor::activation::softplus;
 use prism_render::splat::{Gaussians, render};
 
-use crate::dpt::{DptHead, DptHeadConfig};
 use crate::views::{Views, focals, points_along_rays};
+use dpt::{DptHead, DptHeadConfig};
 
 /// Largest raw confidence value before `exp` (`C <= 1 + e^15`).
 const MAX_CONFIDENCE_LOGIT: f32 = 15.0;
 
 /// Configuration of a [`PointBranch`].
 #[derive(Config, Debug)]
-pub struct PointBranchConfig {
+pub(crate) struct PointBranchConfig {
     /// Token width `d`.
     pub width: usize,
-    /// The stage-I blocks read (see [`crate::dpt::dpt_taps`]).
+    /// The stage-I blocks read (see [`dpt::dpt_taps`]).
     pub taps: Vec<usize>,
     /// Patch size `p`.
     pub patch_size: usize,
@@ -52,7 +54,7 @@ pub struct PointBranchConfig {
 
 impl PointBranchConfig {
     /// Builds the branch.
-    pub fn init(&self, device: &Device) -> PointBranch {
+    pub(crate) fn init(&self, device: &Device) -> PointBranch {
         PointBranch {
             dpt: DptHeadConfig::new(
                 self.width,

@@ -50,26 +50,26 @@ use prism_render::splat::{GaussianCloud, Gaussians, background, render};
 use serde::{Deserialize, Serialize};
 
 use crate::error::ModelError;
-use crate::patch::unpatchify;
-use crate::point_branch::{inverse_softplus, pixel_rows};
+use crate::geometry::points::{inverse_softplus, pixel_rows};
+use crate::tokenizer::patch::unpatchify;
 use crate::views::{Views, focals, points_along_rays};
 
 /// Raw values per Gaussian: distance 1, log-scale 3, rotation 4, opacity 1, colour 3.
-pub const GAUSSIAN_CHANNELS: usize = 12;
+pub(crate) const GAUSSIAN_CHANNELS: usize = 12;
 /// Smallest scale, in source-pixel footprints.
-pub const MIN_SCALE_PIXELS: f32 = 0.1;
+pub(crate) const MIN_SCALE_PIXELS: f32 = 0.1;
 /// Largest scale, in source-pixel footprints.
-pub const MAX_SCALE_PIXELS: f32 = 10.0;
+pub(crate) const MAX_SCALE_PIXELS: f32 = 10.0;
 /// Colour distance from the background (largest channel difference, in [0, 1]) at which the
 /// key of `gs_keying` is fully opaque.
-pub const KEY_WIDTH: f32 = 0.1;
+pub(crate) const KEY_WIDTH: f32 = 0.1;
 /// The key's range: opacities at initialisation stay within `[KEY_FLOOR, 1 - KEY_FLOOR]`, so
 /// that the learned correction can still move them.
-pub const KEY_FLOOR: f32 = 0.01;
+pub(crate) const KEY_FLOOR: f32 = 0.01;
 
 /// Configuration of a [`GaussianHead`].
 #[derive(Config, Debug)]
-pub struct GaussianHeadConfig {
+pub(crate) struct GaussianHeadConfig {
     /// Token width `d`.
     pub width: usize,
     /// Patch size `p`.
@@ -99,7 +99,7 @@ pub struct GaussianHeadConfig {
 
 impl GaussianHeadConfig {
     /// Builds the head.
-    pub fn init(&self, device: &Device) -> GaussianHead {
+    pub(crate) fn init(&self, device: &Device) -> GaussianHead {
         GaussianHead {
             norm: LayerNormConfig::new(self.width)
                 .with_bias(false)
@@ -130,7 +130,7 @@ impl GaussianHeadConfig {
 
     /// Whether the head starts from the source pixels (`colour` or `depth` taken from them):
     /// then its projection starts at zero.
-    pub fn is_geometric(&self) -> bool {
+    pub(crate) fn is_geometric(&self) -> bool {
         self.colour != GsColour::Regressed || self.depth == GsDepth::Points || self.keying
     }
 }
@@ -165,7 +165,7 @@ pub enum GsDepth {
 
 /// `logit(k)` of the key `k = clamp(max_c |I_s - bg| / KEY_WIDTH, KEY_FLOOR, 1 - KEY_FLOOR)` of
 /// a source image `[B, 3, H, W]` on the background colour: `[B, 1, H, W]`.
-pub fn key_logits(source_image: &Tensor<4>, background: &[f32]) -> Tensor<4> {
+pub(crate) fn key_logits(source_image: &Tensor<4>, background: &[f32]) -> Tensor<4> {
     let device = source_image.device();
     let bg = Tensor::<4>::from_data(TensorData::new(background.to_vec(), [1, 3, 1, 1]), &device);
     let key = (source_image.clone() - bg)

@@ -21,12 +21,12 @@ use prism_kernels::gelu;
 
 /// The upsampling factors of the reassembled maps, from the earliest tap (for patch sizes that
 /// are multiples of 4; otherwise every map stays on the token grid, see [`reassemble_factors`]).
-pub const REASSEMBLE_FACTORS: [usize; 4] = [4, 2, 1, 1];
+pub(crate) const REASSEMBLE_FACTORS: [usize; 4] = [4, 2, 1, 1];
 
 /// The reassembly factors for patch size `p`: [`REASSEMBLE_FACTORS`] when `p` is a multiple of
 /// 4 (so that the finest map, at `4 / p` of the image, upsamples to it by an integer factor),
 /// else all 1.
-pub fn reassemble_factors(patch_size: usize) -> [usize; 4] {
+pub(crate) fn reassemble_factors(patch_size: usize) -> [usize; 4] {
     if patch_size.is_multiple_of(4) {
         REASSEMBLE_FACTORS
     } else {
@@ -38,14 +38,14 @@ const HEAD_HIDDEN: usize = 32;
 
 /// The stage-I blocks a DPT head reads for `m` stage-I blocks: up to four, evenly spaced,
 /// the last one `m - 1` (e.g. 2, 5, 8, 11 for `m = 12`; 0, 1 for `m = 2`).
-pub fn dpt_taps(m: usize) -> Vec<usize> {
+pub(crate) fn dpt_taps(m: usize) -> Vec<usize> {
     let k = m.min(REASSEMBLE_FACTORS.len());
     (0..k).map(|i| ((i + 1) * m).div_ceil(k) - 1).collect()
 }
 
 /// Configuration of a [`DptHead`].
 #[derive(Config, Debug)]
-pub struct DptHeadConfig {
+pub(crate) struct DptHeadConfig {
     /// Token width `d`.
     pub width: usize,
     /// Number of taps `K` (1 to 4).
@@ -66,7 +66,7 @@ impl DptHeadConfig {
     ///
     /// # Panics
     /// If `taps` is not 1 to 4 or `channels` is below 2.
-    pub fn init(&self, device: &Device) -> DptHead {
+    pub(crate) fn init(&self, device: &Device) -> DptHead {
         assert!(
             (1..=REASSEMBLE_FACTORS.len()).contains(&self.taps),
             "a DPT head reads 1 to 4 taps, not {}",

@@ -5,11 +5,11 @@ use burn::module::Module;
 use burn::nn::{Initializer, LayerNorm, LayerNormConfig, Linear, LinearConfig};
 use burn::tensor::{Device, Tensor};
 
-use crate::attention::{AttentionKind, FeatureMap, SelfAttention, SelfAttentionConfig};
+use super::attention::{AttentionKind, FeatureMap, SelfAttention, SelfAttentionConfig};
 
 /// Configuration of a [`PrismBlock`].
 #[derive(Config, Debug)]
-pub struct PrismBlockConfig {
+pub(crate) struct PrismBlockConfig {
     /// Token width `d`.
     pub width: usize,
     /// Number of attention heads.
@@ -41,12 +41,12 @@ pub struct PrismBlockConfig {
 
 impl PrismBlockConfig {
     /// The standard deviation of the output projections: `init_std / sqrt(2 * num_blocks)`.
-    pub fn out_init_std(&self) -> f64 {
+    pub(crate) fn out_init_std(&self) -> f64 {
         self.init_std / (2.0 * self.num_blocks.max(1) as f64).sqrt()
     }
 
     /// Builds the block.
-    pub fn init(&self, device: &Device) -> PrismBlock {
+    pub(crate) fn init(&self, device: &Device) -> PrismBlock {
         let norm = || {
             LayerNormConfig::new(self.width)
                 .with_bias(false)

@@ -5,12 +5,12 @@
 //! 1. Adapter: per source token `a_i = GELU(W_a LN(x_i) + b_a)` (width `h`), pooled by one
 //!    learned attention query `q`: `a = sum_i softmax_i(a_i . q / sqrt(h)) a_i`.
 //! 2. Regressor: `r = W_2 GELU(W_1 a + b_1) + b_2` with 353 outputs: betas (10), 55 joint
-//!    rotations as 6D vectors (330, see [`crate::rotation`]), expression (10) and the
-//!    weak-perspective camera `pi = (s, tx, ty)` (`s = softplus(.)`, see [`crate::placement`]).
+//!    rotations as 6D vectors (330, see [`rotation`]), expression (10) and the
+//!    weak-perspective camera `pi = (s, tx, ty)` (`s = softplus(.)`, see [`placement`]).
 //!    `b_2` starts at the mean body: zero betas and expression, identity rotations, `s` of a body
 //!    `body_height` tall at `depth_prior` metres, the anchor at the image centre.
 //! 3. The Burn body model ([`BodyLayer`]) poses the mesh from the rotation matrices (no
-//!    gradient), the placement of [`crate::placement`] puts it in the world through the source
+//!    gradient), the placement of [`placement`] puts it in the world through the source
 //!    camera (as tensor ops), and the mesh rasterizer finds the visible face and barycentrics at
 //!    every target pixel ([`prism_render::mesh::rasterize_maps`]), all on the model's device.
 //! 4. Position map: the canonical rest-pose positions `v_shaped = T + S [beta; psi]` (shape and
@@ -23,6 +23,10 @@
 //! betas, expression and `pi` directly, the pose as rotation matrices (`body.json`'s axis-angle
 //! through Rodrigues' formula): `|R - R*|_F^2` is smooth everywhere, unlike a difference of
 //! axis-angle vectors (which jumps at angles of pi and is not unique).
+
+pub(crate) mod body_model;
+pub(crate) mod placement;
+pub(crate) mod rotation;
 
 use std::sync::Arc;
 
@@ -41,14 +45,14 @@ use prism_kernels::gelu;
 use prism_render::mesh::{FragmentMaps, rasterize_maps};
 use prism_render::triplane::sample_triplane;
 
-#[cfg(test)]
-use crate::placement::scale_for_height;
-use crate::point_branch::inverse_softplus;
-use crate::rotation::{IDENTITY_6D, rotation_6d_to_matrix};
+use crate::geometry::points::inverse_softplus;
 use crate::views::Views;
+#[cfg(test)]
+use placement::scale_for_height;
+use rotation::{IDENTITY_6D, rotation_6d_to_matrix};
 
 /// Outputs of the regressor: betas, 6D rotations, expression, camera.
-pub const SMPLX_OUTPUTS: usize = NUM_BETAS + 6 * NUM_JOINTS + NUM_EXPRESSION + 3;
+pub(crate) const SMPLX_OUTPUTS: usize = NUM_BETAS + 6 * NUM_JOINTS + NUM_EXPRESSION + 3;
 /// Shape and expression coefficients of the rest shape.
 const COEFFS: usize = NUM_BETAS + NUM_EXPRESSION;
 /// The bounding box of the template is enlarged by this factor before it is mapped to the
@@ -57,7 +61,7 @@ const BOX_MARGIN: f32 = 1.1;
 
 /// Configuration of a [`SmplxBranch`].
 #[derive(Config, Debug)]
-pub struct SmplxBranchConfig {
+pub(crate) struct SmplxBranchConfig {
     /// Token width `d`.
     pub width: usize,
     /// Width `h` of the adapter and the regressor.
@@ -66,7 +70,7 @@ pub struct SmplxBranchConfig {
     pub triplane_resolution: usize,
     /// Channels `C` of the triplane (and of `F_smpl`).
     pub triplane_channels: usize,
-    /// World height (metres) the placement gives the posed body (see [`crate::placement`]).
+    /// World height (metres) the placement gives the posed body (see [`placement`]).
     pub body_height: f64,
     /// Distance (metres) of the subject from the source camera at initialisation.
     pub depth_prior: f64,
@@ -84,7 +88,7 @@ pub struct SmplxBranchConfig {
 impl SmplxBranchConfig {
     /// Builds the branch around `body` (its template fixes the triplane's bounding box and the
     /// initial camera scale).
-    pub fn init(&self, body: &BodyModel, device: &Device) -> SmplxBranch {
+    pub(crate) fn init(&self, body: &BodyModel, device: &Device) -> SmplxBranch {
         let normal = |std: f64| Initializer::Normal { mean: 0.0, std };
         let linear = |i: usize, o: usize, std: f64| {
             LinearConfig::new(i, o)
@@ -223,7 +227,7 @@ pub struct SmplxTargets {
     pub rotations: Tensor<4>,
     /// `[B, 10]`.
     pub expression: Tensor<2>,
-    /// The weak-perspective camera of the fit in the source view ([`weak_perspective`]),
+    /// The weak-perspective camera of the fit in the source view (`placement::weak_perspective`),
     /// `[B, 3]`.
     pub camera: Tensor<2>,
     /// `[B]`: 1 where the pair's subject has a fit, 0 where not (the other rows are zeros).
@@ -308,7 +312,7 @@ impl SmplxBranch {
     }
 
     /// Poses the body (no gradient) and places it in the world through the source cameras
-    /// ([`crate::placement`], as tensor ops on the model's device): `[B, V, 3]`.
+    /// (the `placement` module's formulas, as tensor ops on the model's device): `[B, V, 3]`.
     pub fn world_vertices(
         &self,
         betas: &Tensor<2>,
@@ -409,7 +413,7 @@ impl SmplxBranch {
     }
 
     /// The body fits of a batch (`PrismBatch::body_tensors`) as targets of the regressor, the
-    /// camera through the source cameras ([`weak_perspective`], anchored at the fit's root
+    /// camera through the source cameras (`placement::weak_perspective`, anchored at the fit's root
     /// joint). Rows without a fit are zeros with `present` 0.
     ///
     /// # Panics
@@ -508,7 +512,7 @@ mod tests {
     #[test]
     fn the_fit_s_parameters_place_the_body_where_the_dataset_has_it() {
         let device = ndarray();
-        let model = crate::body_model::load_body_model("procedural:0").unwrap();
+        let model = body_model::load_body_model("procedural:0").unwrap();
         let p = fit();
         let posed_world = model.pose(&p);
         // The placement's height rule with the height this fit has: the scale comes out exact.
@@ -551,7 +555,7 @@ mod tests {
     #[test]
     fn the_regressor_starts_at_the_mean_body() {
         let device = ndarray();
-        let model = crate::body_model::load_body_model("procedural:0").unwrap();
+        let model = body_model::load_body_model("procedural:0").unwrap();
         let branch = SmplxBranchConfig::new(16, 16, 8, 4, 1.77, 2.0).init(&model, &device);
         device.seed(2);
         let tokens = Tensor::<3>::random([2, 4, 16], Distribution::Normal(0.0, 1.0), &device);

@@ -22,7 +22,7 @@ static PEAK: AtomicU64 = AtomicU64::new(0);
 pub struct PeakAllocator<A>(pub A);
 
 /// Live heap bytes now, as counted by [`PeakAllocator`] (0 when it is not installed).
-pub fn live_heap_bytes() -> u64 {
+pub(crate) fn live_heap_bytes() -> u64 {
     LIVE.load(Ordering::Relaxed)
 }
 

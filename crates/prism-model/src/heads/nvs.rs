@@ -16,7 +16,7 @@ use burn::tensor::{Device, Tensor};
 
 use serde::{Deserialize, Serialize};
 
-use crate::patch::unpatchify;
+use crate::tokenizer::patch::unpatchify;
 
 /// What the NVS decoder predicts (`nvs_output` in `[model]`; see the module docs).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -31,7 +31,7 @@ pub enum NvsOutput {
 
 /// Configuration of an [`NvsHead`].
 #[derive(Config, Debug)]
-pub struct NvsHeadConfig {
+pub(crate) struct NvsHeadConfig {
     /// Token width `d`.
     pub width: usize,
     /// Patch size `p`.
@@ -49,7 +49,7 @@ pub struct NvsHeadConfig {
 
 impl NvsHeadConfig {
     /// Builds the head.
-    pub fn init(&self, device: &Device) -> NvsHead {
+    pub(crate) fn init(&self, device: &Device) -> NvsHead {
         NvsHead {
             norm: LayerNormConfig::new(self.width)
                 .with_bias(false)

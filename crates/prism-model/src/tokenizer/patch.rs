@@ -10,7 +10,7 @@ use burn::tensor::Tensor;
 ///
 /// # Panics
 /// If `H` or `W` is not a multiple of `p`.
-pub fn patchify(x: Tensor<4>, p: usize) -> Tensor<3> {
+pub(crate) fn patchify(x: Tensor<4>, p: usize) -> Tensor<3> {
     let [batch, channels, height, width] = x.dims();
     assert!(
         p > 0 && height.is_multiple_of(p) && width.is_multiple_of(p),
@@ -28,7 +28,7 @@ pub fn patchify(x: Tensor<4>, p: usize) -> Tensor<3> {
 ///
 /// # Panics
 /// If the token count or feature size does not match `height`, `width`, `channels` and `p`.
-pub fn unpatchify(
+pub(crate) fn unpatchify(
     tokens: Tensor<3>,
     channels: usize,
     height: usize,

@@ -67,7 +67,7 @@ impl FeatureMap {
 /// computed right to left, so the cost is `O(T d_h^2)` per head and no `T x T` matrix is ever
 /// formed. The sums are accumulated in f32 whatever the input precision; the result is cast
 /// back to the input's dtype.
-pub fn linear_attention(
+pub(crate) fn linear_attention(
     q: Tensor<4>,
     k: Tensor<4>,
     v: Tensor<4>,
@@ -102,7 +102,7 @@ pub fn linear_attention(
 
 /// Configuration of a [`SelfAttention`] layer.
 #[derive(Config, Debug)]
-pub struct SelfAttentionConfig {
+pub(crate) struct SelfAttentionConfig {
     /// Token width `d`.
     pub width: usize,
     /// Number of heads; `width` must be a multiple of it.
@@ -133,7 +133,7 @@ impl SelfAttentionConfig {
     /// # Panics
     /// If `width` is not a multiple of `heads` (configs are checked before, see
     /// [`crate::PrismConfig::validate`]).
-    pub fn init(&self, device: &Device) -> SelfAttention {
+    pub(crate) fn init(&self, device: &Device) -> SelfAttention {
         assert!(
             self.heads > 0 && self.width.is_multiple_of(self.heads),
             "width {} is not a multiple of heads {}",

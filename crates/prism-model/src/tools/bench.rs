@@ -13,8 +13,8 @@ use prism_core::reads::{geometry_host_reads, host_reads};
 use prism_core::{Camera, Intrinsics};
 use serde::Serialize;
 
-use crate::memory::MemoryProbe;
 use crate::prism::Prism;
+use crate::tools::memory::MemoryProbe;
 use crate::views::Views;
 
 /// Views of `b` pairs as the viewing protocol makes them, at `res x res`: the frontal source

@@ -16,11 +16,11 @@
 
 use serde::Serialize;
 
-use crate::attention::AttentionKind;
 use crate::config::PrismConfig;
-use crate::dpt::{dpt_taps, reassemble_factors};
-use crate::gaussian_head::GAUSSIAN_CHANNELS;
-use crate::smplx_branch::SMPLX_OUTPUTS;
+use crate::geometry::points::dpt::{dpt_taps, reassemble_factors};
+use crate::geometry::smplx::SMPLX_OUTPUTS;
+use crate::heads::gaussian::GAUSSIAN_CHANNELS;
+use crate::stages::attention::AttentionKind;
 use crate::tokenizer::{SOURCE_CHANNELS, TARGET_CHANNELS};
 
 /// Parameter counts of a model, total and per part.
@@ -182,7 +182,7 @@ fn geometry_flops(config: &PrismConfig, s: f64) -> f64 {
 }
 
 /// Forward FLOPs of one block's attention with `tokens` tokens (see the module docs).
-pub fn attention_flops(config: &PrismConfig, kind: AttentionKind, tokens: usize) -> f64 {
+pub(crate) fn attention_flops(config: &PrismConfig, kind: AttentionKind, tokens: usize) -> f64 {
     let (t, d, dh) = (tokens as f64, config.width as f64, config.head_dim() as f64);
     match kind {
         AttentionKind::Full => 4.0 * t * t * d,
@@ -310,7 +310,7 @@ impl ModelInfo {
 
 /// Every float parameter of a module as (path, values flattened to one dimension), in visiting
 /// order; paths are the modules' field names joined by dots (`stage_one.blocks.0.mlp...`).
-pub fn named_parameters<M: burn::module::Module>(
+pub(crate) fn named_parameters<M: burn::module::Module>(
     module: &M,
 ) -> Vec<(String, burn::tensor::Tensor<1>)> {
     use burn::module::{ModuleVisitor, Param};

@@ -1,11 +1,13 @@
 //! Stage I and stage III of the cascade (paper Sec. 3.2): runs of transformer blocks, with
 //! taps on the hidden states that distillation reads.
 
-use burn::module::Module;
-use burn::tensor::Tensor;
+pub(crate) mod attention;
+pub(crate) mod block;
 
-use crate::block::PrismBlock;
-use crate::precision::cast;
+use burn::module::Module;
+use burn::tensor::{DType, FloatDType, Tensor};
+
+use block::PrismBlock;
 
 /// Collects the hidden states (block outputs) of chosen blocks during a forward pass, in the
 /// order they were asked for. Blocks are named by their global index `0..M+N` (stage I's
@@ -65,6 +67,16 @@ impl HiddenStates {
                 state.unwrap_or_else(|| panic!("hidden state of block {index} was not computed"))
             })
             .collect()
+    }
+}
+
+/// `x` in `dtype` (no op when it already is).
+pub(crate) fn cast<const D: usize>(x: Tensor<D>, dtype: impl Into<DType>) -> Tensor<D> {
+    let dtype = dtype.into();
+    if x.dtype() == dtype {
+        x
+    } else {
+        x.cast(FloatDType::from(dtype))
     }
 }
 

@@ -12,7 +12,7 @@ use prism_body::procedural::parse_model_name;
 use crate::error::ModelError;
 
 /// Whether `spec` names a procedural model (`procedural:SEED`).
-pub fn is_procedural(spec: &str) -> bool {
+pub(crate) fn is_procedural(spec: &str) -> bool {
     parse_model_name(spec).is_some()
 }
 
@@ -20,7 +20,7 @@ pub fn is_procedural(spec: &str) -> bool {
 ///
 /// # Errors
 /// [`ModelError::Invalid`] for `model.body_model`.
-pub fn check_body_model(spec: &str) -> Result<(), ModelError> {
+pub(crate) fn check_body_model(spec: &str) -> Result<(), ModelError> {
     if is_procedural(spec) {
         return Ok(());
     }
@@ -43,7 +43,7 @@ pub fn check_body_model(spec: &str) -> Result<(), ModelError> {
 ///
 /// # Errors
 /// [`ModelError::Body`] when the `.npz` cannot be read or is not an SMPL-X model.
-pub fn load_body_model(spec: &str) -> Result<Arc<BodyModel>, ModelError> {
+pub(crate) fn load_body_model(spec: &str) -> Result<Arc<BodyModel>, ModelError> {
     static CACHE: OnceLock<Mutex<HashMap<String, Arc<BodyModel>>>> = OnceLock::new();
     let cache = CACHE.get_or_init(Default::default);
     if let Some(model) = cache.lock().expect("body model cache").get(spec) {

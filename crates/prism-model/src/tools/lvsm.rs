@@ -47,20 +47,20 @@ use burn::store::pytorch::PytorchReader;
 use burn::store::pytorch_reader::DType as PtDType;
 use burn::tensor::{Device, Tensor, TensorData, bf16, f16};
 
-use crate::block::PrismBlock;
 use crate::config::PrismConfig;
 use crate::error::ModelError;
-use crate::head::NvsOutput;
-use crate::info::named_parameters;
+use crate::heads::nvs::NvsOutput;
 use crate::prism::Prism;
+use crate::stages::block::PrismBlock;
 use crate::tokenizer::{SOURCE_CHANNELS, TARGET_CHANNELS};
+use crate::tools::info::named_parameters;
 
 /// The dict entry of the checkpoint that holds the state dict.
-pub const MODEL_KEY: &str = "model";
+pub(crate) const MODEL_KEY: &str = "model";
 /// Prefix of the tensors that are skipped (LVSM's perceptual loss network).
-pub const SKIPPED_PREFIX: &str = "loss_computer.";
+pub(crate) const SKIPPED_PREFIX: &str = "loss_computer.";
 /// `eps` of LVSM's LayerNorms and QK RMSNorms.
-pub const LVSM_NORM_EPS: f64 = 1e-5;
+pub(crate) const LVSM_NORM_EPS: f64 = 1e-5;
 
 /// Which prism blocks receive LVSM's blocks (`--blocks` of `prism convert lvsm`).
 #[derive(Clone, Debug, Default, PartialEq, Eq)]

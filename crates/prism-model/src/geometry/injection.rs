@@ -23,11 +23,11 @@ use burn::module::{Module, Param};
 use burn::nn::{Initializer, Linear, LinearConfig};
 use burn::tensor::{Device, Tensor};
 
-use crate::patch::patchify;
+use crate::tokenizer::patch::patchify;
 
 /// Configuration of an [`Injection`].
 #[derive(Config, Debug)]
-pub struct InjectionConfig {
+pub(crate) struct InjectionConfig {
     /// Token width `d`.
     pub width: usize,
     /// Patch size `p` (kernel and stride of the zero convolutions).
@@ -43,7 +43,7 @@ pub struct InjectionConfig {
 
 impl InjectionConfig {
     /// Builds the injection: zero convolutions, `g_res = 0`, the branch gates at `gate_init`.
-    pub fn init(&self, device: &Device) -> Injection {
+    pub(crate) fn init(&self, device: &Device) -> Injection {
         let p2 = self.patch_size * self.patch_size;
         let zero_conv = |channels: usize| ZeroConv {
             linear: LinearConfig::new(p2 * channels, self.width)
