@@ -23,7 +23,12 @@ fn fill(v: u64) -> u8 {
 /// Checks that `path` holds one whole version and returns its number.
 fn complete_version(path: &Path) -> u64 {
     let bytes = std::fs::read(path).unwrap();
-    assert_eq!(bytes.len(), 8 + PAYLOAD, "a partial file: {} bytes", bytes.len());
+    assert_eq!(
+        bytes.len(),
+        8 + PAYLOAD,
+        "a partial file: {} bytes",
+        bytes.len()
+    );
     let v = u64::from_le_bytes(bytes[..8].try_into().unwrap());
     assert!(
         bytes[8..].iter().all(|&b| b == fill(v)),
@@ -85,15 +90,29 @@ fn a_killed_writer_leaves_the_old_or_the_new_file() {
         child.kill().unwrap(); // SIGKILL on Unix: no destructor, no cleanup runs.
         child.wait().unwrap();
         let after = complete_version(&path);
-        assert!(after >= before, "round {round}: went back from {before} to {after}");
-        if after > before { changed += 1 } else { kept += 1 }
+        assert!(
+            after >= before,
+            "round {round}: went back from {before} to {after}"
+        );
+        if after > before {
+            changed += 1
+        } else {
+            kept += 1
+        }
         let names: Vec<_> = std::fs::read_dir(dir.path())
             .unwrap()
             .map(|e| e.unwrap().file_name())
             .collect();
-        assert_eq!(names, ["state.bin"], "round {round}: leftovers beside the file");
+        assert_eq!(
+            names,
+            ["state.bin"],
+            "round {round}: leftovers beside the file"
+        );
     }
     // The child did write: some rounds ended on a newer version (the others were killed
     // before their first rename completed).
-    assert!(changed > 0, "no round got past a write ({kept} kept the old file)");
+    assert!(
+        changed > 0,
+        "no round got past a write ({kept} kept the old file)"
+    );
 }
