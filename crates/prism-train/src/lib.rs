@@ -32,9 +32,11 @@ pub mod parallel;
 pub mod plot;
 pub mod predict;
 pub mod quickstart;
+pub mod report;
 pub mod schedule;
 pub mod step;
 pub mod student;
+pub mod tally;
 pub mod teacher;
 pub mod trainer;
 pub mod validate;
@@ -49,10 +51,7 @@ pub use config::{TrainConfig, TrainingConfig, config_name, configs_dir};
 pub use convert::{LVSM_TASK, convert_lvsm};
 pub use data::{DataOrder, Prefetcher};
 pub use error::TrainError;
-pub use evaluate::{
-    AngleBin, EvaluateOptions, Evaluation, EvaluationFiles, MeanScores, PerAngle, SubjectGrid,
-    evaluate, evaluate_checkpoint, write_evaluation,
-};
+pub use evaluate::{EvaluateOptions, Evaluation, SubjectGrid, evaluate, evaluate_checkpoint};
 pub use groups::{
     HEAD_MODULES, heads_group, heads_group_with, heads_pattern, heads_pattern_with, is_head,
     learning_rates, learning_rates_with,
@@ -69,9 +68,11 @@ pub use quickstart::{
     QuickstartModel, QuickstartOptions, QuickstartPlan, QuickstartReport, StudentJob,
     compress_schedule, quickstart, quickstart_table,
 };
+pub use report::{EvaluationFiles, evaluation_json, markdown_report, write_evaluation};
 pub use schedule::WarmupCosine;
 pub use step::{Prediction, StepLoss, StepValues, TRAINEE_FIELD, TrainItem, Trainee};
 pub use student::{StudentLoss, StudentTask, distill_student, kinds_letters, student_config};
+pub use tally::{AngleBin, MeanScores, MethodScores, PerAngle, Tally};
 pub use teacher::{TeacherLoss, TeacherTask};
 pub use trainer::{RUN_CONFIG_FILE, RunOptions, RunSummary, SAMPLES_DIR, Task, TaskData, train};
-pub use validate::{ValidationScores, Validator, validation_views};
+pub use validate::{Validator, validation_views};

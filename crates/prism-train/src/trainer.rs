@@ -36,7 +36,8 @@ use crate::parallel::{DataParallel, training_devices};
 use crate::plot::plot_run;
 use crate::schedule::WarmupCosine;
 use crate::step::{StepLoss, StepValues, TrainItem, Trainee};
-use crate::validate::{ValidationScores, Validator};
+use crate::validate::Validator;
+use prism_losses::ImageScores;
 
 /// AdamW's first-moment decay.
 pub const ADAM_BETA_1: f32 = 0.9;
@@ -137,11 +138,11 @@ pub struct RunSummary {
     /// Steps done at the end.
     pub steps: usize,
     /// The copy-the-source baseline (fresh runs only).
-    pub baseline: Option<ValidationScores>,
+    pub baseline: Option<ImageScores>,
     /// The validation of the initial model (fresh runs only).
-    pub initial: Option<ValidationScores>,
+    pub initial: Option<ImageScores>,
     /// The last validation.
-    pub last: Option<ValidationScores>,
+    pub last: Option<ImageScores>,
     /// The PNG grid of the last validation.
     pub last_samples: Option<PathBuf>,
     /// The last checkpoint written.
@@ -509,7 +510,7 @@ fn run_validation(
     samples_dir: &Path,
     log: &mut MetricsLog,
     bar: &ProgressBar,
-) -> Result<(ValidationScores, PathBuf)> {
+) -> Result<(ImageScores, PathBuf)> {
     let model = trainee.prism.valid();
     let (scores, grid) = validator.validate(&model);
     let name = format!("step-{step:08}.png");
