@@ -7,8 +7,9 @@ use anyhow::Context;
 use clap::Args;
 use prism_core::BackendKind;
 use prism_data::SynthOptions;
+use prism_losses::ImageScores;
 use prism_synth::ensure_synthetic_dataset;
-use prism_train::{Checkpoint, RunOptions, RunSummary, ValidationScores};
+use prism_train::{Checkpoint, RunOptions, RunSummary};
 
 /// Where a command's dataset comes from.
 #[derive(Args, Clone, Debug)]
@@ -135,7 +136,7 @@ pub fn print_summary(summary: &RunSummary, labels: [&str; 2]) {
             summary.skipped_steps
         );
     }
-    let row = |name: &str, s: &ValidationScores| {
+    let row = |name: &str, s: &ImageScores| {
         println!(
             "{name:<28} PSNR {:>7.3} dB  SSIM {:.4}  LPIPS {:.4}",
             s.psnr, s.ssim, s.lpips

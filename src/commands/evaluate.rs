@@ -94,7 +94,7 @@ impl EvaluateArgs {
         )
         .with_context(|| format!("evaluating {}", checkpoint.display()))?;
         if let Some(json) = &self.json {
-            write_atomic(json, &prism_train::evaluate::evaluation_json(&e))?;
+            write_atomic(json, &prism_train::evaluation_json(&e))?;
         }
         println!(
             "{} subjects x {} views: PSNR {:.3} dB  SSIM {:.4}  LPIPS {:.4}  FPS {:.2} ({})",

@@ -4,25 +4,30 @@
 //!   combines `L_nvs` and `L_gs` (MSE + LPIPS), [`point_loss`] (`L_pts`), [`smplx_loss`]
 //!   (`L_smplx`) and [`distill_loss`] (`L_distill`) and reports every term by name.
 //! - Metrics: [`psnr()`], [`ssim()`] and [`Lpips::distance`] on `[B, 3, H, W]` tensors in [0, 1],
-//!   per image; [`score_paths`] scores image files or folders (`prism metrics`).
+//!   per image. [`score_images`] is the one scoring pipeline (all three per image, and
+//!   [`ImageScores::mean`]) of validation, evaluation and [`score_paths`] (image files or
+//!   folders, `prism metrics`); [`ScoreTable`] is the one formatter of their tables.
 //!
 //! LPIPS uses the real v0.1 AlexNet weights committed at `data/lpips_alex.safetensors`
 //! (found by [`find_lpips_weights`]); nothing is ever downloaded.
 
 pub mod distill;
 pub mod error;
+pub mod image_files;
 pub mod lpips;
 pub mod objective;
 pub mod opacity;
 pub mod point;
 pub mod psnr;
-pub mod scoring;
+pub mod scores;
 pub mod smplx;
 pub mod ssim;
+pub mod table;
 pub mod weights;
 
 pub use distill::{DistillInputs, distill_layers, distill_loss};
 pub use error::LossError;
+pub use image_files::{FolderScores, Scores, load_image, score_files, score_paths};
 pub use lpips::{LPIPS_MIN_SIDE, Lpips};
 pub use objective::{
     ImagePair, LossInputs, LossTerms, LossWeights, Objective, OpacityInputs, PointInputs,
@@ -31,9 +36,8 @@ pub use objective::{
 pub use opacity::{mask_rows, opacity_loss};
 pub use point::{POINT_LOSS_SCALES, PointLoss, point_loss};
 pub use psnr::psnr;
-pub use scoring::{
-    FolderScores, ImageScores, Scores, load_image, score_files, score_images, score_paths,
-};
+pub use scores::{ImageScores, score_images};
 pub use smplx::{SmplxParams, smplx_loss};
 pub use ssim::{SSIM_WINDOW, ssim, ssim_map};
+pub use table::{NO_VALUE, SCORE_COLUMNS, ScoreTable, score_cells};
 pub use weights::{LPIPS_WEIGHTS_ENV, LPIPS_WEIGHTS_FILE, find_lpips_weights};

@@ -3,20 +3,24 @@
 //!
 //! - Config: [`TrainingConfig`] composes the `[model]`, `[distill]`, `[losses]`, `[train]`
 //!   ([`TrainConfig`]) and `[data]` (`prism_data::SynthOptions`) sections of a TOML file.
-//! - Loop: [`train`] runs a [`Task`] (its per-device [`StepLoss`] and a per-step hook) with
-//!   AdamW, the [`WarmupCosine`] schedules of the backbone and the [`HEAD_MODULES`], global-norm
-//!   clipping, a non-finite guard, data parallelism through Burn ([`DataParallel`]),
-//!   validation ([`Validator`]), `metrics.jsonl` ([`MetricsLog`]) and atomic checkpoints
-//!   ([`save_checkpoint`], [`Checkpoint`], [`load_model`]).
+//! - Loop: [`train`] prepares the run ([`prepare_run_folder`], [`initial_model`]), then runs a
+//!   [`TrainingStep`] per step (its [`Task`]'s per-device [`StepLoss`], AdamW, the
+//!   [`WarmupCosine`] schedules of the backbone and the [`HEAD_MODULES`], global-norm clipping,
+//!   a non-finite guard, data parallelism through Burn ([`DataParallel`])) followed by its
+//!   [`Cadence`]: `metrics.jsonl` ([`MetricsLog`]), validation ([`Validator`]), training
+//!   curves and atomic checkpoints ([`save_checkpoint`], [`Checkpoint`], [`load_model`]).
 //! - Data: [`DataOrder`] makes each step's samples a pure function of (seed, step), so a
 //!   resumed run continues exactly. The trainer receives a dataset folder; the commands choose
 //!   it (`--data`, or the config's synthetic dataset from `prism_synth`'s cache).
 //! - Teacher: [`TeacherTask`] / [`TeacherLoss`].
 //! - Student: [`StudentTask`] / [`StudentLoss`] with [`student_config`] (distillation).
-//! - Evaluation ([`evaluate`]: the paper's protocol, per-angle breakdown, FPS, report) and
-//!   inference from a photo ([`infer`]), both through [`predict`]; images in [`images`].
+//! - Evaluation ([`evaluate()`]: the paper's protocol, per-angle breakdown, FPS; the report in
+//!   [`report`]) and inference from a photo ([`infer()`]), both through [`predict`]; images in
+//!   [`images`]. Validation and evaluation score views with `prism_losses::score_images` and
+//!   average them per subject, then over the subjects, with a [`Tally`].
 //! - Training curves: [`plot_run`] draws a run's `metrics.jsonl` into its [`PLOT_FILE`].
 
+pub mod cadence;
 pub mod checkpoint;
 pub mod clip;
 pub mod config;
@@ -32,13 +36,18 @@ pub mod parallel;
 pub mod plot;
 pub mod predict;
 pub mod quickstart;
+pub mod report;
 pub mod schedule;
+pub mod start;
 pub mod step;
 pub mod student;
+pub mod tally;
 pub mod teacher;
 pub mod trainer;
+pub mod training_step;
 pub mod validate;
 
+pub use cadence::{Cadence, SAMPLES_DIR};
 pub use checkpoint::{
     CHECKPOINTS_DIR, Checkpoint, CheckpointContents, CheckpointState, checkpoint_dir,
     latest_checkpoint, list_checkpoints, load_model, save_checkpoint, save_model_checkpoint,
@@ -49,10 +58,7 @@ pub use config::{TrainConfig, TrainingConfig, config_name, configs_dir};
 pub use convert::{LVSM_TASK, convert_lvsm};
 pub use data::{DataOrder, Prefetcher};
 pub use error::TrainError;
-pub use evaluate::{
-    AngleBin, EvaluateOptions, Evaluation, EvaluationFiles, MeanScores, PerAngle, SubjectGrid,
-    evaluate, evaluate_checkpoint, write_evaluation,
-};
+pub use evaluate::{EvaluateOptions, Evaluation, SubjectGrid, evaluate, evaluate_checkpoint};
 pub use groups::{
     HEAD_MODULES, heads_group, heads_group_with, heads_pattern, heads_pattern_with, is_head,
     learning_rates, learning_rates_with,
@@ -69,9 +75,13 @@ pub use quickstart::{
     QuickstartModel, QuickstartOptions, QuickstartPlan, QuickstartReport, StudentJob,
     compress_schedule, quickstart, quickstart_table,
 };
+pub use report::{EvaluationFiles, evaluation_json, markdown_report, write_evaluation};
 pub use schedule::WarmupCosine;
+pub use start::{RUN_CONFIG_FILE, Start, initial_model, prepare_run_folder};
 pub use step::{Prediction, StepLoss, StepValues, TRAINEE_FIELD, TrainItem, Trainee};
 pub use student::{StudentLoss, StudentTask, distill_student, kinds_letters, student_config};
+pub use tally::{AngleBin, MeanScores, MethodScores, PerAngle, Tally};
 pub use teacher::{TeacherLoss, TeacherTask};
-pub use trainer::{RUN_CONFIG_FILE, RunOptions, RunSummary, SAMPLES_DIR, Task, TaskData, train};
-pub use validate::{ValidationScores, Validator, validation_views};
+pub use trainer::{RunOptions, RunSummary, Task, TaskData, train};
+pub use training_step::{Skipped, StepReport, TrainingStep};
+pub use validate::{Validator, validation_views};

@@ -13,10 +13,12 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use prism_core::BackendKind;
+use prism_losses::{NO_VALUE, ScoreTable};
 
 use crate::config::TrainingConfig;
 use crate::error::Result;
-use crate::evaluate::{EvaluateOptions, Evaluation, EvaluationFiles, evaluate_checkpoint};
+use crate::evaluate::{EvaluateOptions, Evaluation, evaluate_checkpoint};
+use crate::report::EvaluationFiles;
 use crate::teacher::TeacherTask;
 use crate::trainer::{RunOptions, RunSummary, train};
 
@@ -208,36 +210,25 @@ pub fn quickstart(
 /// `I_gs` of their 3DGS heads (when they have one) and the "copy the source view" baseline on
 /// the same views (the teacher's evaluation's; the student's is on the same views).
 pub fn quickstart_table(report: &QuickstartReport) -> String {
-    let mut out = String::new();
-    let _ = writeln!(
-        out,
-        "| model | steps | train (s) | PSNR (dB) | SSIM | LPIPS | FPS |"
-    );
-    let _ = writeln!(out, "|---|---:|---:|---:|---:|---:|---:|");
+    let mut table = ScoreTable::new("model")
+        .before(["steps", "train (s)"])
+        .after(["FPS"]);
     let models = [("teacher", &report.teacher), ("student", &report.student)];
     for (name, m) in models {
         let e = &m.evaluation;
-        let _ = writeln!(
-            out,
-            "| {name} | {} | {:.0} | {:.3} | {:.4} | {:.4} | {:.2} |",
-            m.steps, m.train_seconds, e.psnr, e.ssim, e.lpips, e.fps
-        );
+        let before = [m.steps.to_string(), format!("{:.0}", m.train_seconds)];
+        table.row(name, &before, &e.mean(), &[format!("{:.2}", e.fps)]);
     }
+    let none = || [NO_VALUE.to_string(), NO_VALUE.to_string()];
     for (name, m) in models {
         if let Some(gs) = &m.evaluation.gs {
-            let _ = writeln!(
-                out,
-                "| {name} I_gs (3DGS head) | - | - | {:.3} | {:.4} | {:.4} | - |",
-                gs.psnr, gs.ssim, gs.lpips
-            );
+            let row = format!("{name} I_gs (3DGS head)");
+            table.row(row, &none(), &gs.mean(), &[NO_VALUE.into()]);
         }
     }
-    let c = &report.teacher.evaluation.copy_source;
-    let _ = writeln!(
-        out,
-        "| copy source (view 0) | - | - | {:.3} | {:.4} | {:.4} | - |",
-        c.psnr, c.ssim, c.lpips
-    );
+    let copy = report.teacher.evaluation.copy_source.mean();
+    table.row("copy source (view 0)", &none(), &copy, &[NO_VALUE.into()]);
+    let mut out = table.to_markdown();
     let _ = writeln!(out);
     for (name, m) in models {
         let _ = writeln!(out, "{name} report: {}", m.files.report.display());

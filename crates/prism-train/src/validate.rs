@@ -1,7 +1,6 @@
 //! Validation during training: PSNR, SSIM and LPIPS of the model on held-out subjects, the
-//! "copy the source view" baseline, and a PNG grid of sample predictions.
-
-use std::collections::BTreeMap;
+//! "copy the source view" baseline, and a PNG grid of sample predictions. The views are scored
+//! and averaged as `prism evaluate` does ([`score_images`], [`Tally`]).
 
 use burn::module::Module;
 use burn::tensor::{Device, Tensor};
@@ -9,33 +8,22 @@ use image::{Rgb, RgbImage};
 use prism_data::{
     DatasetReader, PrismBatch, PrismBatcher, Sample, SampleDataset, SplitKind, TargetSelection,
 };
-use prism_losses::{LPIPS_MIN_SIDE, Lpips, psnr, ssim};
+use prism_losses::{ImageScores, Lpips, score_images};
 use prism_model::Prism;
-use serde::Serialize;
 
 use crate::error::Result;
+use crate::tally::Tally;
 
 /// Pairs per forward pass during validation.
 const VALIDATION_BATCH: usize = 8;
 /// Rows (target views of the first held-out subject) in the sample grid.
 const GRID_ROWS: usize = 4;
 
-/// Mean metrics over the held-out subjects (each subject's views averaged first, then the
-/// subjects, as in the paper's evaluation protocol).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct ValidationScores {
-    /// PSNR in dB.
-    pub psnr: f64,
-    /// SSIM.
-    pub ssim: f64,
-    /// LPIPS (NaN when the images are smaller than LPIPS's 31 px minimum).
-    pub lpips: f64,
-}
-
-/// The held-out views a run validates on, loaded once.
+/// The held-out views a run validates on, loaded once. Its scores are means over the held-out
+/// subjects (each subject's views averaged first, then the subjects, as in the paper's
+/// evaluation protocol); LPIPS is NaN below LPIPS's 31 px minimum.
 pub struct Validator {
     samples: Vec<Sample>,
-    subjects: Vec<usize>,
     lpips: Option<Lpips>,
     background: [f32; 3],
     device: Device,
@@ -70,19 +58,15 @@ impl Validator {
         )?;
         let views = validation_views(views_per_subject);
         let mut samples = Vec::new();
-        let mut subjects = Vec::new();
         for subject in 0..dataset.subjects().len() {
             for &view in &views {
                 // With one target per item, item `s * 100 + v - 1` is view `v` of subject `s`.
                 samples.push(dataset.load(subject * 100 + view - 1)?);
-                subjects.push(subject);
             }
         }
-        let usable = resolution as usize >= LPIPS_MIN_SIDE;
         Ok(Self {
             samples,
-            subjects,
-            lpips: lpips.filter(|_| usable).map(|l| l.to_device(device)),
+            lpips: lpips.map(|l| l.to_device(device)),
             background: reader.meta().background,
             device: device.clone(),
         })
@@ -100,7 +84,7 @@ impl Validator {
 
     /// Scores `model` (an inference model on the validator's device) on every held-out view;
     /// also returns the sample grid (source, prediction, ground truth per row).
-    pub fn validate(&self, model: &Prism) -> (ValidationScores, RgbImage) {
+    pub fn validate(&self, model: &Prism) -> (ImageScores, RgbImage) {
         // The validated image is the NVS decoder's.
         let model = model.clone().without_training_heads();
         let mut grid_rows = Vec::new();
@@ -113,59 +97,35 @@ impl Validator {
 
     /// The "copy the source view" baseline: the source image taken as the prediction of every
     /// target view.
-    pub fn copy_source_baseline(&self) -> ValidationScores {
+    pub fn copy_source_baseline(&self) -> ImageScores {
         self.score(|batch| batch.source_image.clone(), None)
     }
 
+    /// The scores of `predict`'s images of every held-out view; with `grid_rows`, the first
+    /// [`GRID_ROWS`] views of the first subject as (source, prediction, ground truth).
     fn score(
         &self,
         predict: impl Fn(&PrismBatch) -> Tensor<4>,
         mut grid_rows: Option<&mut Vec<[Tensor<4>; 3]>>,
-    ) -> ValidationScores {
-        let mut per_subject: BTreeMap<usize, Vec<[f64; 3]>> = BTreeMap::new();
-        let mut index = 0;
+    ) -> ImageScores {
+        let mut tally = Tally::default();
         for chunk in self.samples.chunks(VALIDATION_BATCH) {
             let batch = PrismBatcher.batch_samples(chunk, &self.device);
             let pred = predict(&batch).clamp(0.0, 1.0);
             let gt = batch.target_image.clone();
-            let p = psnr(pred.clone(), gt.clone());
-            let s = ssim(pred.clone(), gt.clone());
-            let l = match &self.lpips {
-                Some(lpips) => lpips.distance(pred.clone(), gt.clone()),
-                None => vec![f64::NAN; p.len()],
-            };
             if let Some(rows) = grid_rows.as_deref_mut() {
-                let [n, c, h, w] = pred.dims();
-                for i in 0..n {
-                    if rows.len() < GRID_ROWS && self.subjects[index + i] == self.subjects[0] {
+                let [_, c, h, w] = pred.dims();
+                for (i, sample) in chunk.iter().enumerate() {
+                    if rows.len() < GRID_ROWS && sample.subject == self.samples[0].subject {
                         let row = |t: &Tensor<4>| t.clone().slice([i..i + 1, 0..c, 0..h, 0..w]);
                         rows.push([row(&batch.source_image), row(&pred), row(&gt)]);
                     }
                 }
             }
-            for i in 0..p.len() {
-                per_subject
-                    .entry(self.subjects[index + i])
-                    .or_default()
-                    .push([p[i], s[i], l[i]]);
-            }
-            index += p.len();
+            tally.add_batch(chunk, &score_images(pred, gt, self.lpips.as_ref()));
         }
-        let means: Vec<[f64; 3]> = per_subject.values().map(|v| mean_rows(v)).collect();
-        let [psnr, ssim, lpips] = mean_rows(&means);
-        ValidationScores { psnr, ssim, lpips }
+        tally.finish().mean()
     }
-}
-
-fn mean_rows(rows: &[[f64; 3]]) -> [f64; 3] {
-    let n = rows.len().max(1) as f64;
-    let mut out = [0.0; 3];
-    for r in rows {
-        for (o, v) in out.iter_mut().zip(r) {
-            *o += v / n;
-        }
-    }
-    out
 }
 
 /// The sample grid: one row per pair, columns source | prediction | ground truth, 8-bit RGB.

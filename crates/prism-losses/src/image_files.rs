@@ -1,41 +1,17 @@
-//! Scoring rendered images against ground truth from files: the library side of
-//! `prism metrics` (and of `prism evaluate --pred/--gt`).
+//! Scoring rendered image files against ground truth, one pair or two folders: the library
+//! side of `prism metrics` and `prism evaluate --pred/--gt`, through [`score_images`] and
+//! [`ScoreTable`].
 
 use std::collections::BTreeMap;
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use burn::tensor::{Device, Tensor, TensorData};
 use serde::Serialize;
 
-use crate::{LPIPS_MIN_SIDE, LossError, Lpips, SSIM_WINDOW, psnr, ssim};
+use crate::{ImageScores, LPIPS_MIN_SIDE, LossError, Lpips, SSIM_WINDOW, ScoreTable, score_images};
 
 /// File extensions scored in folders (case-insensitive).
 pub const IMAGE_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
-
-/// PSNR (dB), SSIM and LPIPS of one image against its ground truth.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct ImageScores {
-    /// PSNR in dB (`+inf` for identical images, written `null` in JSON).
-    pub psnr: f64,
-    /// SSIM (scikit-image's Gaussian variant).
-    pub ssim: f64,
-    /// LPIPS v0.1 AlexNet.
-    pub lpips: f64,
-}
-
-impl ImageScores {
-    /// The mean of each metric over `scores` (NaN for an empty list).
-    pub fn mean(scores: &[ImageScores]) -> ImageScores {
-        let n = scores.len() as f64;
-        let sum = |f: fn(&ImageScores) -> f64| scores.iter().map(f).sum::<f64>() / n;
-        ImageScores {
-            psnr: sum(|s| s.psnr),
-            ssim: sum(|s| s.ssim),
-            lpips: sum(|s| s.lpips),
-        }
-    }
-}
 
 /// The scores of two folders: the mean and each image by file name.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -62,36 +38,19 @@ impl Scores {
         serde_json::to_string_pretty(self).expect("scores serialise")
     }
 
-    /// The scores as a readable table.
+    /// The scores as a Markdown table: a row for the pair, or a row per image and their mean.
     pub fn to_table(&self) -> String {
-        let mut out = String::new();
+        let mut table = ScoreTable::new("image");
         match self {
-            Scores::Pair(s) => {
-                let _ = writeln!(out, "PSNR   {:>10.4} dB", s.psnr);
-                let _ = writeln!(out, "SSIM   {:>10.6}", s.ssim);
-                let _ = writeln!(out, "LPIPS  {:>10.6}", s.lpips);
-            }
+            Scores::Pair(s) => table.row("pair", &[], s, &[]),
             Scores::Folders(f) => {
-                let width = f.images.keys().map(String::len).max().unwrap_or(0).max(16);
-                let row = |out: &mut String, name: &str, s: &ImageScores| {
-                    let _ = writeln!(
-                        out,
-                        "{name:<width$}  {:>10.4}  {:>8.6}  {:>8.6}",
-                        s.psnr, s.ssim, s.lpips
-                    );
-                };
-                let _ = writeln!(
-                    out,
-                    "{:<width$}  {:>10}  {:>8}  {:>8}",
-                    "image", "PSNR (dB)", "SSIM", "LPIPS"
-                );
                 for (name, s) in &f.images {
-                    row(&mut out, name, s);
+                    table.row(name.as_str(), &[], s, &[]);
                 }
-                row(&mut out, &format!("mean of {}", f.images.len()), &f.mean);
+                table.row(format!("mean of {}", f.images.len()), &[], &f.mean, &[]);
             }
         }
-        out
+        table.to_markdown()
     }
 }
 
@@ -125,18 +84,6 @@ pub fn load_image(path: &Path, device: &Device) -> Result<Tensor<4>, LossError> 
         };
     let data = TensorData::new(interleaved, [1, height, width, 3]);
     Ok(Tensor::<4>::from_data(data, device).permute([0, 3, 1, 2]))
-}
-
-/// PSNR, SSIM and LPIPS of each image of a batch, `[B, 3, H, W]` in [0, 1] (H, W >= 31).
-pub fn score_images(pred: Tensor<4>, gt: Tensor<4>, lpips: &Lpips) -> Vec<ImageScores> {
-    let p = psnr(pred.clone(), gt.clone());
-    let s = ssim(pred.clone(), gt.clone());
-    let l = lpips.distance(pred, gt);
-    p.into_iter()
-        .zip(s)
-        .zip(l)
-        .map(|((psnr, ssim), lpips)| ImageScores { psnr, ssim, lpips })
-        .collect()
 }
 
 /// Scores one image file against another (same size, at least 31 x 31).
@@ -173,7 +120,7 @@ pub fn score_files(
             min,
         });
     }
-    Ok(score_images(p, g, lpips)[0])
+    Ok(score_images(p, g, Some(lpips))[0])
 }
 
 /// Scores `pred` against `gt`: two image files, or two folders whose images (png, jpg, jpeg;

@@ -1,0 +1,123 @@
+//! Where a run starts: its folder prepared (or the checkpoint it resumes read and checked)
+//! and the model it starts from.
+
+use std::fs;
+use std::path::Path;
+
+use burn::tensor::Device;
+use prism_model::Prism;
+
+use crate::checkpoint::{
+    Checkpoint, check_architecture, check_resumable, latest_checkpoint, remove_partial_checkpoints,
+};
+use crate::config::TrainingConfig;
+use crate::error::{Result, TrainError};
+use crate::trainer::{RunOptions, Task};
+
+/// The run folder's copy of the config it was started with.
+pub const RUN_CONFIG_FILE: &str = "config.toml";
+
+/// The model a run starts from.
+pub struct Start {
+    /// The model, on the main training device.
+    pub model: Prism,
+    /// Steps already done (those of the resumed checkpoint, else 0).
+    pub step: usize,
+    /// The blocks newly initialised when the model was made from a pretrained backbone (see
+    /// [`crate::CheckpointState::new_blocks`]).
+    pub new_blocks: Vec<usize>,
+}
+
+/// Checks the run folder against the options (a fresh run needs a folder without checkpoints,
+/// `--resume` one with), removes half-written checkpoints and, for a fresh run, writes its
+/// [`RUN_CONFIG_FILE`]. Returns the checkpoint to resume from.
+///
+/// # Errors
+/// A folder that does not fit the options, a checkpoint of another job or config, I/O errors.
+pub fn prepare_run_folder(
+    run: &Path,
+    config: &TrainingConfig,
+    task: &dyn Task,
+    options: &RunOptions,
+) -> Result<Option<Checkpoint>> {
+    let fail = |message: String| {
+        Err(TrainError::RunFolder {
+            path: run.to_path_buf(),
+            message,
+        })
+    };
+    if options.resume && options.init.is_some() {
+        return fail(
+            "--resume and --init cannot be combined: --resume continues the run's own checkpoint"
+                .into(),
+        );
+    }
+    remove_partial_checkpoints(run)?;
+    let latest = latest_checkpoint(run)?;
+    if !options.resume {
+        if let Some(latest) = latest {
+            return fail(format!(
+                "already holds a run (latest checkpoint {}); pass --resume to continue it or \
+                 choose another --out",
+                latest.display()
+            ));
+        }
+        fs::create_dir_all(run).map_err(|e| TrainError::io(run, e))?;
+        let path = run.join(RUN_CONFIG_FILE);
+        prism_core::files::write_bytes(&path, config.to_toml().as_bytes())
+            .map_err(|e| TrainError::io(&path, e))?;
+        return Ok(None);
+    }
+    let Some(latest) = latest else {
+        return fail("holds no checkpoint to resume from; start the run without --resume".into());
+    };
+    let checkpoint = Checkpoint::read(&latest)?;
+    if checkpoint.state.task != task.name() {
+        return Err(TrainError::ConfigMismatch {
+            path: checkpoint.dir.clone(),
+            what: format!(
+                "it is a {} run, this is a {} run",
+                checkpoint.state.task,
+                task.name()
+            ),
+        });
+    }
+    check_resumable(&checkpoint, config)?;
+    Ok(Some(checkpoint))
+}
+
+/// The model to start from, its step and its newly initialised blocks (which train at
+/// `lr_heads`, see [`CheckpointState::new_blocks`](crate::CheckpointState::new_blocks)): the
+/// resumed checkpoint's, `--init`'s weights, or a fresh initialisation seeded by `train.seed`.
+///
+/// # Errors
+/// Unreadable weights, or an `--init` checkpoint of another architecture.
+pub fn initial_model(
+    config: &TrainingConfig,
+    resumed: Option<&Checkpoint>,
+    options: &RunOptions,
+    device: &Device,
+) -> Result<Start> {
+    if let Some(checkpoint) = resumed {
+        return Ok(Start {
+            model: checkpoint.load_model(device)?,
+            step: checkpoint.state.step,
+            new_blocks: checkpoint.state.new_blocks.clone(),
+        });
+    }
+    if let Some(init) = &options.init {
+        let checkpoint = Checkpoint::read(init)?;
+        check_architecture(&checkpoint, &config.model)?;
+        return Ok(Start {
+            model: checkpoint.load_model(device)?,
+            step: 0,
+            new_blocks: checkpoint.state.new_blocks.clone(),
+        });
+    }
+    device.seed(config.train.seed);
+    Ok(Start {
+        model: config.model.init(device),
+        step: 0,
+        new_blocks: Vec::new(),
+    })
+}
