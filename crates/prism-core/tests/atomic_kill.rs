@@ -95,9 +95,9 @@ fn a_killed_writer_leaves_the_old_or_the_new_file() {
             "round {round}: went back from {before} to {after}"
         );
         if after > before {
-            changed += 1
+            changed += 1;
         } else {
-            kept += 1
+            kept += 1;
         }
         let names: Vec<_> = std::fs::read_dir(dir.path())
             .unwrap()
