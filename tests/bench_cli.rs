@@ -1,18 +1,13 @@
 //! End-to-end tests of `prism bench --config FILE --res ...` through the built binary (flex,
 //! the default backend), on the tiny config at tiny resolutions.
 
+mod common;
+
 use std::path::PathBuf;
-use std::process::{Command, Output};
 
 use prism_train::{TrainingConfig, configs_dir};
 
-/// A scratch folder for one test, removed first.
-fn scratch(test: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("prism-bench-cli-{}-{test}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
+use common::{output, prism_with_cache, scratch, stderr, stdout, success};
 
 /// configs/tiny.toml at 32 px without LPIPS, its synthetic data 4 subjects of 32 px, written
 /// into `dir`.
@@ -28,20 +23,13 @@ fn tiny_config(dir: &std::path::Path) -> PathBuf {
     path
 }
 
-fn prism(args: &[&str], cache: &std::path::Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_prism"))
-        .args(args)
-        .env(prism_synth::CACHE_ENV, cache)
-        .output()
-        .expect("run prism")
-}
-
 #[test]
 fn bench_times_teacher_student_linear_and_the_training_step() {
     let dir = scratch("table");
     let config = tiny_config(&dir);
     let json = dir.join("out/bench.json");
-    let out = prism(
+    let out = success(prism_with_cache(
+        &dir.join("cache"),
         &[
             "bench",
             "--config",
@@ -57,14 +45,8 @@ fn bench_times_teacher_student_linear_and_the_training_step() {
             "--json",
             json.to_str().unwrap(),
         ],
-        &dir.join("cache"),
-    );
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    ));
+    let stdout = stdout(&out);
     let value: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     let rows = value["rows"].as_array().unwrap();
@@ -122,7 +104,8 @@ fn bench_times_teacher_student_linear_and_the_training_step() {
 fn bench_rejects_a_resolution_that_is_not_a_multiple_of_the_patch() {
     let dir = scratch("bad-res");
     let config = tiny_config(&dir);
-    let out = prism(
+    let out = output(prism_with_cache(
+        &dir.join("cache"),
         &[
             "bench",
             "--config",
@@ -130,10 +113,9 @@ fn bench_rejects_a_resolution_that_is_not_a_multiple_of_the_patch() {
             "--res",
             "32,20",
         ],
-        &dir.join("cache"),
-    );
+    ));
     assert_eq!(out.status.code(), Some(1));
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let stderr = stderr(&out);
     assert!(
         stderr.contains("--res 20") && stderr.contains("patch size 8"),
         "{stderr}"
@@ -145,9 +127,9 @@ fn bench_rejects_a_resolution_that_is_not_a_multiple_of_the_patch() {
 #[test]
 fn bench_needs_a_config_or_a_subcommand() {
     let dir = scratch("no-config");
-    let out = prism(&["bench"], &dir.join("cache"));
+    let out = output(prism_with_cache(&dir.join("cache"), &["bench"]));
     assert!(!out.status.success());
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let stderr = stderr(&out);
     assert!(stderr.contains("--config"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -174,7 +156,8 @@ fn the_pytorch_peer_config_has_the_peer_shapes_and_runs() {
     assert!(compare.contains(shapes), "compare.py passes other shapes");
 
     let dir = scratch("peer");
-    let out = prism(
+    let out = success(prism_with_cache(
+        &dir,
         &[
             "bench",
             "--config",
@@ -187,14 +170,8 @@ fn the_pytorch_peer_config_has_the_peer_shapes_and_runs() {
         .into_iter()
         .chain(["--warmup", "0", "--iters", "1", "--train-steps", "0"])
         .collect::<Vec<_>>(),
-        &dir,
-    );
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let table = String::from_utf8_lossy(&out.stdout);
+    ));
+    let table = stdout(&out);
     assert!(
         table.contains("teacher") && table.contains("linear"),
         "{table}"

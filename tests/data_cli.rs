@@ -1,22 +1,11 @@
 //! End-to-end tests of `prism data synth` and `prism data check` through the built binary.
 
+mod common;
+
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
-fn prism(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_prism"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn text(out: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    )
-}
+use common::{run, text};
 
 fn synth(out: &Path, extra: &[&str]) -> Output {
     let mut args = vec![
@@ -30,7 +19,7 @@ fn synth(out: &Path, extra: &[&str]) -> Output {
         "32",
     ];
     args.extend_from_slice(extra);
-    prism(&args)
+    run(&args)
 }
 
 #[test]
@@ -41,7 +30,7 @@ fn synth_then_check_then_rerun_then_corrupt() {
     assert!(out.status.success(), "{}", text(&out));
     assert!(text(&out).contains("3 subjects written"), "{}", text(&out));
 
-    let out = prism(&["data", "check", data.to_str().unwrap()]);
+    let out = run(&["data", "check", data.to_str().unwrap()]);
     assert!(out.status.success(), "{}", text(&out));
     assert!(
         text(&out).contains("ok (3 subjects, 315 views)"),
@@ -85,7 +74,7 @@ fn synth_then_check_then_rerun_then_corrupt() {
 
     // A broken file makes check fail, naming it.
     std::fs::write(data.join("subject_0001/rgb/042.png"), b"broken").unwrap();
-    let out = prism(&["data", "check", data.to_str().unwrap()]);
+    let out = run(&["data", "check", data.to_str().unwrap()]);
     assert_eq!(out.status.code(), Some(1));
     assert!(
         text(&out).contains("subject_0001/rgb/042.png"),
@@ -99,7 +88,7 @@ fn synth_is_reproducible_and_rejects_bad_input() {
     let dir = tempfile::tempdir().unwrap();
     let (a, b) = (dir.path().join("a"), dir.path().join("b"));
     for d in [&a, &b] {
-        let out = prism(&[
+        let out = run(&[
             "data",
             "synth",
             "--out",
@@ -128,7 +117,7 @@ fn synth_is_reproducible_and_rejects_bad_input() {
         "{}",
         text(&out)
     );
-    let out = prism(&[
+    let out = run(&[
         "data",
         "check",
         dir.path().join("nothing").to_str().unwrap(),

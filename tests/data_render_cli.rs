@@ -1,26 +1,15 @@
 //! End-to-end tests of `prism data render` through the built binary, on scans written here in
 //! THuman's layout (`NNNN/NNNN.obj`, `material0.mtl`, `material0.jpeg`).
 
+mod common;
+
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
 use prism_body::BodyParams;
 use prism_data::DatasetReader;
 
-fn prism(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_prism"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn stdout(out: &Output) -> String {
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-fn stderr(out: &Output) -> String {
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
+use common::{run, stderr, stdout};
 
 /// Writes `scans/name` as THuman lays a scan out, here a person-sized box in centimetres with
 /// Z up (front towards -Y): the front textured by `material0.jpeg` (written when `texture`),
@@ -51,7 +40,7 @@ fn write_scan(scans: &Path, name: &str, texture: bool) {
 }
 
 fn render(scans: &Path, out: &Path) -> Output {
-    prism(&[
+    run(&[
         "data",
         "render",
         "--scans",
@@ -115,7 +104,7 @@ fn render_reports_failures_checks_and_reruns() {
     );
 
     // The result is a valid dataset of the rendered subjects.
-    let check = prism(&["data", "check", data.to_str().unwrap()]);
+    let check = run(&["data", "check", data.to_str().unwrap()]);
     assert!(
         check.status.success() && stdout(&check).contains("ok (2 subjects, 210 views)"),
         "{}{}",
@@ -173,7 +162,7 @@ fn render_reports_failures_checks_and_reruns() {
         "{}",
         stdout(&out)
     );
-    let check = prism(&["data", "check", data.to_str().unwrap()]);
+    let check = run(&["data", "check", data.to_str().unwrap()]);
     assert!(
         stdout(&check).contains("ok (3 subjects, 315 views)"),
         "{}",
@@ -189,7 +178,7 @@ fn render_rejects_bad_arguments_with_one_line() {
     let scans = tmp.path().join("scans");
     write_scan(&scans, "a", true);
     let out_dir = tmp.path().join("ds");
-    let run = |extra: &[&str]| {
+    let render_with = |extra: &[&str]| {
         let mut args = vec![
             "data",
             "render",
@@ -199,7 +188,7 @@ fn render_rejects_bad_arguments_with_one_line() {
             out_dir.to_str().unwrap(),
         ];
         args.extend_from_slice(extra);
-        prism(&args)
+        run(&args)
     };
     for (extra, expected) in [
         (&["--facing", "up"][..], "facing must be one of"),
@@ -207,7 +196,7 @@ fn render_rejects_bad_arguments_with_one_line() {
         (&["--res", "4"][..], "at least 8 px"),
         (&["--background", "1,2,0"][..], "[0, 1]"),
     ] {
-        let out = run(extra);
+        let out = render_with(extra);
         assert_eq!(
             out.status.code(),
             Some(if extra[0] == "--res" { 1 } else { 2 })
@@ -220,7 +209,7 @@ fn render_rejects_bad_arguments_with_one_line() {
         assert!(!stderr(&out).contains("panicked"));
     }
     assert!(!out_dir.exists(), "nothing written for bad arguments");
-    let out = prism(&[
+    let out = run(&[
         "data",
         "render",
         "--scans",

@@ -2,8 +2,10 @@
 //! tiny teacher is trained, then distilled into the progressive student (interrupted and
 //! resumed) and the paper's ablations, on a tiny synthetic dataset in a private cache folder.
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 use prism_core::BackendKind;
 use prism_model::AttentionKind;
@@ -12,12 +14,7 @@ use prism_train::{
     Checkpoint, TrainingConfig, configs_dir, kinds_letters, load_model, read_metrics,
 };
 
-fn scratch(test: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("prism-distill-cli-{}-{test}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
+use common::{prism_with_cache, scratch, stdout, success};
 
 /// configs/tiny.toml (its `[distill]` schedule included) at 32 px without LPIPS in the loss
 /// (LPIPS backward is slow on ndarray; validation still reports it), 4 subjects of 32 px, with
@@ -40,21 +37,11 @@ fn tiny_config() -> TrainingConfig {
     c
 }
 
+/// `prism ARGS --backend ndarray --quiet` with the cache folder `cache`, which must succeed.
 fn prism(cache: &Path, args: &[&str]) -> Output {
-    let out = Command::new(env!("CARGO_BIN_EXE_prism"))
-        .args(args)
-        .args(["--backend", "ndarray", "--quiet"])
-        .env(prism_synth::CACHE_ENV, cache)
-        .env_remove("PRISM_LPIPS_WEIGHTS")
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
+    let mut cmd = prism_with_cache(cache, args);
+    cmd.args(["--backend", "ndarray", "--quiet"]);
+    success(cmd)
 }
 
 /// The validation PSNRs of a run, in order.
@@ -113,7 +100,7 @@ fn distilled_student_stays_near_its_teacher_and_beats_the_fully_linear_ablation(
     assert_eq!(first.state.step, 6);
     assert_eq!(kinds_letters(&first.attention), "LFFLFF");
     let out = distill(&student, &["--resume"]);
-    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stdout = stdout(&out);
     assert!(stdout.contains("trained steps 6..24"), "{stdout}");
 
     // Every switch is logged once, between steps, where the schedule says.

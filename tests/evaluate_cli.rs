@@ -5,18 +5,12 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 use std::sync::OnceLock;
 
 use prism_train::{RunOptions, TeacherTask, TrainingConfig, configs_dir, train};
 
-/// A scratch folder for one test, removed first.
-fn scratch(test: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("prism-eval-cli-{}-{test}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
+use common::{failure, prism_with_cache, s, scratch, stderr, success};
 
 /// configs/tiny.toml at 32 px (LPIPS's minimum is 31) on 4 synthetic subjects, 1 held out.
 fn tiny_config() -> TrainingConfig {
@@ -56,40 +50,12 @@ fn trained() -> &'static (PathBuf, PathBuf) {
     })
 }
 
+/// `prism ARGS --backend ndarray --quiet` with the tiny teacher's cache folder, not yet run.
 fn prism(args: &[&str]) -> Command {
     let (cache, _) = trained();
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_prism"));
-    cmd.args(args)
-        .args(["--backend", "ndarray", "--quiet"])
-        .env(prism_synth::CACHE_ENV, cache)
-        .env_remove("PRISM_LPIPS_WEIGHTS");
+    let mut cmd = prism_with_cache(cache, args);
+    cmd.args(["--backend", "ndarray", "--quiet"]);
     cmd
-}
-
-fn run(mut cmd: Command) -> Output {
-    let out = cmd.output().unwrap();
-    assert!(
-        out.status.success(),
-        "{}\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
-}
-
-/// Runs a failing command and returns its stderr, checking the exit status and one-line error.
-fn failure(mut cmd: Command) -> String {
-    let out = cmd.output().unwrap();
-    assert_eq!(out.status.code(), Some(1), "{out:?}");
-    let err = String::from_utf8(out.stderr).unwrap();
-    assert!(err.starts_with("error: "), "{err}");
-    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
-    assert!(!err.contains("panicked"), "{err}");
-    err
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
 }
 
 fn read_json(path: &Path) -> serde_json::Value {
@@ -136,7 +102,7 @@ fn evaluate_writes_every_key_the_report_and_the_grids() {
     let dir = scratch("evaluate");
     let json = dir.join("scores.json");
     let out = dir.join("eval");
-    run(prism(&[
+    success(prism(&[
         "evaluate",
         "--checkpoint",
         s(run_dir),
@@ -254,7 +220,7 @@ fn evaluate_pred_gt_reproduces_the_reference_metrics() {
         std::fs::copy(reference.join(format!("{name}_target.png")), gt.join(&file)).unwrap();
     }
     let json = dir.join("scores.json");
-    run(prism(&[
+    success(prism(&[
         "evaluate",
         "--pred",
         s(&pred),
@@ -299,7 +265,7 @@ fn infer_writes_the_sweep_a_gif_and_the_gaussians() {
     let dir = scratch("infer");
     let out = dir.join("views");
     let ply = dir.join("person.ply");
-    run(prism(&[
+    success(prism(&[
         "infer",
         "--checkpoint",
         s(run_dir),
@@ -371,7 +337,7 @@ fn infer_writes_the_sweep_a_gif_and_the_gaussians() {
         .unwrap();
     }
     let video_out = dir.join("video-views");
-    let output = run(prism(&[
+    let output = success(prism(&[
         "infer",
         "--checkpoint",
         s(run_dir),
@@ -385,7 +351,7 @@ fn infer_writes_the_sweep_a_gif_and_the_gaussians() {
         "30",
     ]));
     // No mask and no alpha: a warning per frame.
-    assert!(String::from_utf8_lossy(&output.stderr).contains("warning"));
+    assert!(stderr(&output).contains("warning"));
     for k in 0..2 {
         let frame = video_out.join(format!("frame{k}"));
         assert!(frame.join("sweep.gif").is_file());
@@ -524,7 +490,7 @@ fn another_config_and_a_missing_3dgs_head_are_one_clear_line() {
     // is the one training validation logged.
     let json = dir.join("no-gs.json");
     let out = dir.join("no-gs-eval");
-    run(prism(&[
+    success(prism(&[
         "evaluate",
         "--checkpoint",
         s(&no_gs_run),

@@ -7,8 +7,7 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::path::Path;
 
 use image::RgbImage;
 use prism_body::BodyModel;
@@ -19,29 +18,7 @@ use prism_synth::{RenderOptions, render};
 use prism_train::infer::{Sweep, sweep_views, view_file_name};
 use prism_train::{TrainingConfig, configs_dir, read_metrics};
 
-/// A scratch folder for this test, removed first.
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("prism-learning-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn prism(cache: &Path, args: &[&str]) -> String {
-    let out = Command::new(env!("CARGO_BIN_EXE_prism"))
-        .args(args)
-        .env(prism_synth::CACHE_ENV, cache)
-        .env_remove("PRISM_LPIPS_WEIGHTS")
-        .output()
-        .unwrap();
-    let text = format!(
-        "{}\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(out.status.success(), "prism {args:?}:\n{text}");
-    text
-}
+use common::{prism_with_cache, scratch, success};
 
 /// The synthetic person `index` of the config's dataset, rendered in the protocol camera of
 /// `yaw` degrees (pitch 0), as the dataset would store it.
@@ -77,7 +54,7 @@ fn ground_truth(config: &TrainingConfig, index: usize, yaw: f32) -> RgbImage {
 /// Trains `config_path` for `steps` steps into `run` (flex, quiet) with the cache `cache`.
 fn train(cache: &Path, config_path: &Path, run: &Path, steps: usize) {
     let steps = steps.to_string();
-    prism(
+    success(prism_with_cache(
         cache,
         &[
             "train-teacher",
@@ -91,7 +68,7 @@ fn train(cache: &Path, config_path: &Path, run: &Path, steps: usize) {
             "flex",
             "--quiet",
         ],
-    );
+    ));
 }
 
 #[test]
@@ -147,7 +124,7 @@ fn prism_infer_turns_a_held_out_person_better_than_copying() {
         .path();
     let photo = dataset.join(subject_name(held_out)).join("rgb/000.png");
     let views_dir = dir.join("views");
-    prism(
+    success(prism_with_cache(
         &cache,
         &[
             "infer",
@@ -163,7 +140,7 @@ fn prism_infer_turns_a_held_out_person_better_than_copying() {
             "flex",
             "--quiet",
         ],
-    );
+    ));
     let source = image::open(&photo).unwrap().to_rgb8();
     let (mut model, mut copying) = (0.0, 0.0);
     let views = sweep_views(Sweep::Yaw, 10.0, 30.0);

@@ -3,8 +3,10 @@
 //! --save-predictions`, then `prism train-teacher --init`, which trains the converted
 //! backbone at `lr_backbone` and the new geometry parts and heads at `lr_heads`.
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 use burn::module::{Module, ModuleVisitor, Param, ParamId};
 use burn::tensor::Tensor;
@@ -12,12 +14,7 @@ use prism_core::BackendKind;
 use prism_model::{GsColour, GsDepth, NvsOutput};
 use prism_train::{TrainingConfig, configs_dir, heads_group_with, latest_checkpoint, load_model};
 
-fn scratch(test: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("prism-lvsm-cli-{}-{test}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
+use common::{prism_with_cache, scratch, stdout, success};
 
 fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("crates/prism-model/tests/fixtures/lvsm_tiny.pt")
@@ -55,19 +52,9 @@ fn config(dir: &Path) -> PathBuf {
     path
 }
 
+/// `prism ARGS` with the cache folder `cache`, which must succeed.
 fn prism(cache: &Path, args: &[&str]) -> Output {
-    let out = Command::new(env!("CARGO_BIN_EXE_prism"))
-        .args(args)
-        .env(prism_synth::CACHE_ENV, cache)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "prism {args:?} failed:\n{}\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
+    success(prism_with_cache(cache, args))
 }
 
 /// Every float parameter as (path, values).
@@ -117,7 +104,7 @@ fn convert_then_evaluate_then_train_from_the_converted_backbone() {
             &s(&ckpt),
         ],
     );
-    let text = String::from_utf8_lossy(&out.stdout);
+    let text = stdout(&out);
     assert!(text.contains("37 tensors mapped"), "{text}");
     for part in [
         "smplx_branch",

@@ -1,7 +1,11 @@
 //! End-to-end tests of `prism metrics` through the built binary (ndarray backend).
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
+
+use common::{failure, output, scratch, success};
 
 fn reference(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -9,18 +13,11 @@ fn reference(name: &str) -> PathBuf {
         .join(name)
 }
 
-/// A fresh, empty scratch folder for one test.
-fn scratch(test: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("prism-metrics-{}-{test}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn prism(args: &[&Path], extra: &[&str], env: Option<(&str, &str)>) -> Output {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_prism"));
-    cmd.arg("metrics")
-        .arg("--pred")
+/// `prism metrics --pred PRED --gt GT --backend ndarray EXTRA` (`args` is `[PRED, GT]`) without
+/// `PRISM_LPIPS_WEIGHTS` from the caller's environment, with `env` set if given; not yet run.
+fn prism(args: &[&Path], extra: &[&str], env: Option<(&str, &str)>) -> Command {
+    let mut cmd = common::prism(&["metrics"]);
+    cmd.arg("--pred")
         .arg(args[0])
         .arg("--gt")
         .arg(args[1])
@@ -30,7 +27,7 @@ fn prism(args: &[&Path], extra: &[&str], env: Option<(&str, &str)>) -> Output {
     if let Some((k, v)) = env {
         cmd.env(k, v);
     }
-    cmd.output().unwrap()
+    cmd
 }
 
 fn reference_values(name: &str) -> (f64, f64, f64) {
@@ -59,36 +56,16 @@ fn assert_scores(v: &serde_json::Value, expected: (f64, f64, f64)) {
     );
 }
 
-/// Runs a failing command and returns its stderr, checking the exit status and one-line error.
-fn failure(out: Output) -> String {
-    assert!(!out.status.success(), "expected failure, got {:?}", out);
-    assert_eq!(out.status.code(), Some(1));
-    let err = String::from_utf8(out.stderr).unwrap();
-    assert!(err.starts_with("error: "), "{err}");
-    assert_eq!(
-        err.trim_end().lines().count(),
-        1,
-        "one line expected: {err}"
-    );
-    assert!(!err.contains("panicked"), "{err}");
-    err
-}
-
 #[test]
 fn pair_json_reproduces_the_reference() {
-    let out = prism(
+    let out = success(prism(
         &[
             &reference("coffee_tint_pred.png"),
             &reference("coffee_tint_target.png"),
         ],
         &["--json"],
         None,
-    );
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    ));
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v.as_object().unwrap().len(), 3);
     assert_scores(&v, reference_values("coffee_tint"));
@@ -113,12 +90,7 @@ fn folder_json_scores_images_by_name_and_averages() {
         .unwrap();
     }
     std::fs::write(gt.join("notes.txt"), "not scored").unwrap();
-    let out = prism(&[&pred, &gt], &["--json"], None);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let out = success(prism(&[&pred, &gt], &["--json"], None));
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let images = v["images"].as_object().unwrap();
     assert_eq!(images.len(), 2);
@@ -134,7 +106,7 @@ fn folder_json_scores_images_by_name_and_averages() {
     );
 
     // Without --json: a table naming both images and the mean.
-    let out = prism(&[&pred, &gt], &[], None);
+    let out = output(prism(&[&pred, &gt], &[], None));
     let table = String::from_utf8(out.stdout).unwrap();
     assert!(
         table.contains("coffee_tint.png") && table.contains("mean of 2"),

@@ -5,17 +5,19 @@
 
 mod common;
 
-use std::process::Command;
-
 use prism_train::infer::{PERSON_CENTRE_Y, PERSON_HEIGHT_FRACTION};
+
+use common::{prism_with_cache, scratch, stdout, success};
 
 #[test]
 fn quickstart_fast_runs_end_to_end() {
-    let root = std::env::temp_dir().join(format!("prism-quickstart-cli-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&root);
+    let root = scratch("fast");
     let out_dir = root.join("out");
-    let out = Command::new(env!("CARGO_BIN_EXE_prism"))
-        .args(["quickstart", "--fast", "--quiet", "--backend", "flex"])
+    let mut quickstart = prism_with_cache(
+        &root.join("cache"),
+        &["quickstart", "--fast", "--quiet", "--backend", "flex"],
+    );
+    quickstart
         .args([
             "--teacher-steps",
             "4",
@@ -25,17 +27,9 @@ fn quickstart_fast_runs_end_to_end() {
             "3",
         ])
         .arg("--out")
-        .arg(&out_dir)
-        .env(prism_synth::CACHE_ENV, root.join("cache"))
-        .env_remove("PRISM_LPIPS_WEIGHTS")
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+        .arg(&out_dir);
+    let out = success(quickstart);
+    let stdout = stdout(&out);
     assert!(stdout.contains("| model | steps | train (s) | PSNR (dB) | SSIM | LPIPS | FPS |"));
     for model in ["teacher", "student"] {
         let row = stdout

@@ -1,24 +1,15 @@
 //! End-to-end tests of `prism splat render` through the built binary.
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 
 use prism_core::camera::mat4_to_rows;
 use prism_core::{Camera, Intrinsics};
 use prism_render::splat::GaussianCloud;
 
-fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("prism-splat-cli-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn prism(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_prism"))
-        .args(args)
-        .output()
-        .expect("running prism")
-}
+use common::{failure, prism, s, scratch, stdout, success};
 
 /// A red Gaussian in front of a green one, 2 m in front of a frontal camera; and the camera.
 fn scene(dir: &Path) -> (PathBuf, PathBuf) {
@@ -49,12 +40,8 @@ fn scene(dir: &Path) -> (PathBuf, PathBuf) {
     (ply, cam)
 }
 
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-/// `prism splat render --ply PLY --camera CAM --out OUT` followed by `extra`.
-fn render(ply: &Path, cam: &Path, out: &Path, extra: &[&str]) -> Output {
+/// `prism splat render --ply PLY --camera CAM --out OUT` followed by `extra`, not yet run.
+fn render(ply: &Path, cam: &Path, out: &Path, extra: &[&str]) -> Command {
     let mut args = vec![
         "splat",
         "render",
@@ -71,20 +58,15 @@ fn render(ply: &Path, cam: &Path, out: &Path, extra: &[&str]) -> Output {
 
 #[test]
 fn renders_a_ply_file_into_a_png() {
-    let dir = temp_dir("ok");
+    let dir = scratch("ok");
     let (ply, cam) = scene(&dir);
     let out = dir.join("out.png");
-    let run = render(
+    success(render(
         &ply,
         &cam,
         &out,
         &["--background", "0,0,1", "--backend", "ndarray"],
-    );
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    ));
     let image = image::open(&out).unwrap().to_rgb8();
     assert_eq!(image.dimensions(), (48, 40));
     // The red Gaussian covers the centre (the orbit centre projects to (24, 20)).
@@ -101,24 +83,22 @@ fn renders_a_ply_file_into_a_png() {
     assert_eq!(image.get_pixel(47, 39).0, [0, 0, 255]);
     // The same on flex, the default backend.
     let out_flex = dir.join("flex.png");
-    let run = render(&ply, &cam, &out_flex, &["--background", "0,0,1"]);
-    assert!(run.status.success());
+    success(render(&ply, &cam, &out_flex, &["--background", "0,0,1"]));
     assert_eq!(image::open(&out_flex).unwrap().to_rgb8(), image);
     std::fs::remove_dir_all(dir).unwrap();
 }
 
-fn assert_fails(run: &Output, needle: &str, out: &Path) {
-    let stderr = String::from_utf8_lossy(&run.stderr);
-    assert_eq!(run.status.code(), Some(1), "{stderr}");
-    assert!(stderr.starts_with("error: "), "{stderr}");
-    assert_eq!(stderr.trim_end().lines().count(), 1, "{stderr}");
-    assert!(stderr.contains(needle), "{stderr}");
+/// Runs `render`, which must fail with one line (exit status 1, `error: `) naming `needle`,
+/// writing nothing to `out`.
+fn assert_fails(render: Command, needle: &str, out: &Path) {
+    let err = failure(render);
+    assert!(err.contains(needle), "{err}");
     assert!(!out.exists(), "an output was written");
 }
 
 #[test]
 fn a_bad_background_is_a_clear_error() {
-    let dir = temp_dir("bg");
+    let dir = scratch("bg");
     let (ply, cam) = scene(&dir);
     let out = dir.join("out.png");
     for (bg, needle) in [
@@ -126,40 +106,38 @@ fn a_bad_background_is_a_clear_error() {
         ("0,0", "expected R,G,B"),
         ("a,0,0", "`a` is not a number"),
     ] {
-        let run = render(&ply, &cam, &out, &["--background", bg]);
-        assert_fails(&run, needle, &out);
+        assert_fails(
+            render(&ply, &cam, &out, &["--background", bg]),
+            needle,
+            &out,
+        );
     }
     std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]
 fn missing_or_broken_inputs_are_errors_naming_the_file() {
-    let dir = temp_dir("missing");
+    let dir = scratch("missing");
     let (ply, cam) = scene(&dir);
     let out = dir.join("out.png");
     let missing = dir.join("missing.ply");
-    let run = render(&missing, &cam, &out, &[]);
-    assert_fails(&run, "missing.ply", &out);
+    assert_fails(render(&missing, &cam, &out, &[]), "missing.ply", &out);
     let broken = dir.join("broken.json");
     std::fs::write(&broken, "{\"fx\": 10}").unwrap();
-    let run = render(&ply, &broken, &out, &[]);
-    assert_fails(&run, "broken.json", &out);
+    assert_fails(render(&ply, &broken, &out, &[]), "broken.json", &out);
     let not_ply = dir.join("cam-as.ply");
     std::fs::copy(&cam, &not_ply).unwrap();
-    let run = render(&not_ply, &cam, &out, &[]);
-    assert_fails(&run, "cam-as.ply", &out);
+    assert_fails(render(&not_ply, &cam, &out, &[]), "cam-as.ply", &out);
     // An output directory that does not exist: nothing is left behind.
     let nowhere = dir.join("no/such/out.png");
-    let run = render(&ply, &cam, &nowhere, &[]);
-    assert_fails(&run, "out.png", &nowhere);
+    assert_fails(render(&ply, &cam, &nowhere, &[]), "out.png", &nowhere);
     std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]
 fn help_describes_the_command() {
-    let run = prism(&["splat", "render", "--help"]);
-    assert!(run.status.success());
-    let text = String::from_utf8_lossy(&run.stdout);
+    let help = success(prism(&["splat", "render", "--help"]));
+    let text = stdout(&help);
     for flag in ["--ply", "--camera", "--out", "--background", "--backend"] {
         assert!(text.contains(flag), "{text}");
     }

@@ -4,7 +4,7 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
@@ -14,13 +14,7 @@ use prism_train::{
     Checkpoint, TrainingConfig, configs_dir, list_checkpoints, parameter_values, read_metrics,
 };
 
-/// A scratch folder for one test, removed first.
-fn scratch(test: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("prism-train-cli-{}-{test}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
+use common::{failure, output, prism_with_cache, scratch, stderr, stdout, success};
 
 /// The cache folder of this test process, holding the tiny synthetic dataset (synthesised once,
 /// before any child process needs it).
@@ -60,29 +54,17 @@ fn write_config(dir: &Path, config: &TrainingConfig) -> PathBuf {
     path
 }
 
+/// `prism train-teacher --config CONFIG --out OUT --backend ndarray --quiet EXTRA` with this
+/// process's cache folder, not yet run.
 fn prism(config: &Path, out: &Path, extra: &[&str]) -> Command {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_prism"));
-    cmd.arg("train-teacher")
-        .arg("--config")
+    let mut cmd = prism_with_cache(&cache(), &["train-teacher"]);
+    cmd.arg("--config")
         .arg(config)
         .arg("--out")
         .arg(out)
         .args(["--backend", "ndarray", "--quiet"])
-        .args(extra)
-        .env(prism_synth::CACHE_ENV, cache())
-        .env_remove("PRISM_LPIPS_WEIGHTS");
+        .args(extra);
     cmd
-}
-
-fn run(mut cmd: Command) -> Output {
-    let out = cmd.output().unwrap();
-    assert!(
-        out.status.success(),
-        "{}\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
 }
 
 fn weights(dir: &Path) -> Vec<Vec<f32>> {
@@ -127,14 +109,14 @@ fn a_killed_run_leaves_a_loadable_checkpoint_and_resumes_exactly() {
     assert_eq!(model.attention_kinds(), checkpoint.attention);
 
     // Resumed, it ends where an uninterrupted run ends, bit for bit.
-    let out = run(prism(&config, &killed, &["--resume"]));
-    let stdout = String::from_utf8_lossy(&out.stdout);
+    let out = success(prism(&config, &killed, &["--resume"]));
+    let stdout = stdout(&out);
     assert!(
         stdout.contains(&format!("trained steps {step}..60")),
         "{stdout}"
     );
     let straight = dir.join("straight");
-    run(prism(&config, &straight, &[]));
+    success(prism(&config, &straight, &[]));
     assert_eq!(weights(&killed), weights(&straight));
     let steps: Vec<u64> = read_metrics(&killed.join("metrics.jsonl"))
         .unwrap()
@@ -154,31 +136,27 @@ fn bad_input_is_one_clear_line() {
     let broken = broken.to_toml();
     let config = dir.join("broken.toml");
     std::fs::write(&config, broken).unwrap();
-    let out = prism(&config, &dir.join("run"), &[]).output().unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    // Exit status 1, one line `error: ...`.
+    let err = failure(prism(&config, &dir.join("run"), &[]));
     assert!(
-        stderr.starts_with("error:")
-            && stderr.contains("broken.toml")
-            && stderr.contains("train.batch_size"),
-        "{stderr}"
+        err.contains("broken.toml") && err.contains("train.batch_size"),
+        "{err}"
     );
-    assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
 
     let good = write_config(&dir, &tiny_config(2, 1));
-    let out = prism(&good, &dir.join("empty"), &["--resume"])
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{stderr}");
-    assert!(stderr.contains("no checkpoint to resume"), "{stderr}");
+    let out = output(prism(&good, &dir.join("empty"), &["--resume"]));
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("no checkpoint to resume"), "{err}");
 
-    let out = prism(&good, &dir.join("run2"), &["--init", "/nonexistent/ckpt"])
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{stderr}");
-    assert!(stderr.contains("/nonexistent/ckpt"), "{stderr}");
+    let out = output(prism(
+        &good,
+        &dir.join("run2"),
+        &["--init", "/nonexistent/ckpt"],
+    ));
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("/nonexistent/ckpt"), "{err}");
 }
 
 /// Teacher training on the tiny synthetic people through the binary, on two (CPU) devices:
@@ -198,8 +176,8 @@ fn train_teacher_learns_on_the_synthetic_people() {
     config.train.warmup_steps = 10;
     let config = write_config(&dir, &config);
     let run_dir = dir.join("run");
-    let out = run(prism(&config, &run_dir, &["--devices", "2"]));
-    let stdout = String::from_utf8_lossy(&out.stdout);
+    let out = success(prism(&config, &run_dir, &["--devices", "2"]));
+    let stdout = stdout(&out);
     for expected in [
         "copy-the-source baseline",
         "initial model",

@@ -1,10 +1,111 @@
-//! Helpers shared by the command-line tests (each `tests/*.rs` is its own crate: a file uses
-//! the helpers it needs).
+//! Helpers shared by the command-line tests (each `tests/*.rs` is its own crate and declares
+//! `mod common;`: a file uses the helpers it needs).
+//!
+//! - runners: [`prism`] (the built binary with arguments, not yet run), [`prism_with_cache`]
+//!   (the same with a private cache folder), [`run`] (`prism ARGS` run at once);
+//! - outcomes: [`output`] (whatever the exit status), [`success`] (asserts exit 0) and
+//!   [`failure`] (asserts the one-line `error: ` the binary prints on bad input); [`stdout`],
+//!   [`stderr`] and [`text`] of an output;
+//! - files: [`scratch`] (a fresh folder per test), [`s`] (a path as an argument).
 #![allow(dead_code)]
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
 
 use image::RgbImage;
+
+/// `prism ARGS`: the binary this test crate was built with, not yet run (add arguments or
+/// environment, then run it with [`output`], [`success`] or [`failure`]).
+pub fn prism(args: &[&str]) -> Command {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_prism"));
+    cmd.args(args);
+    cmd
+}
+
+/// [`prism`] with its cache folder (datasets, downloads) at `cache` and without
+/// `PRISM_LPIPS_WEIGHTS` from the caller's environment (the shipped LPIPS weights are used).
+pub fn prism_with_cache(cache: &Path, args: &[&str]) -> Command {
+    let mut cmd = prism(args);
+    cmd.env(prism_synth::CACHE_ENV, cache)
+        .env_remove("PRISM_LPIPS_WEIGHTS");
+    cmd
+}
+
+/// Runs `prism ARGS` and returns its output, whatever the exit status.
+pub fn run(args: &[&str]) -> Output {
+    output(prism(args))
+}
+
+/// Runs `cmd` and returns its output, whatever the exit status.
+pub fn output(mut cmd: Command) -> Output {
+    cmd.output()
+        .unwrap_or_else(|e| panic!("cannot run {cmd:?}: {e}"))
+}
+
+/// Runs `cmd`, asserts that it succeeded (showing what it printed if not) and returns its
+/// output.
+pub fn success(cmd: Command) -> Output {
+    let shown = format!("{cmd:?}");
+    let out = output(cmd);
+    assert!(
+        out.status.success(),
+        "{shown} failed ({}):\n{}\n{}",
+        out.status,
+        stdout(&out),
+        stderr(&out)
+    );
+    out
+}
+
+/// Runs a command that must fail as the binary fails on bad input: exit status 1 and one line
+/// on stderr starting `error: `, no panic. Returns that stderr.
+pub fn failure(cmd: Command) -> String {
+    let out = output(cmd);
+    assert!(!out.status.success(), "expected failure, got {out:?}");
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(err.starts_with("error: "), "{err}");
+    assert_eq!(
+        err.trim_end().lines().count(),
+        1,
+        "one line expected: {err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+    err
+}
+
+/// What a run printed on stdout (lossy UTF-8).
+pub fn stdout(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// What a run printed on stderr (lossy UTF-8).
+pub fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// What a run printed: stdout, then stderr.
+pub fn text(out: &Output) -> String {
+    stdout(out) + &stderr(out)
+}
+
+/// A fresh, empty scratch folder for one test (`prism-CRATE-PID-TEST` in the system's temporary
+/// folder), whatever an earlier run left there removed first.
+pub fn scratch(test: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!(
+        "prism-{}-{}-{test}",
+        env!("CARGO_CRATE_NAME"),
+        std::process::id()
+    ));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// `p` as a command-line argument (test paths are UTF-8).
+pub fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
 
 /// PSNR (dB) of two 8-bit RGB images as the metric defines it: `10 log10(1 / MSE)` over all
 /// pixels and channels, values in [0, 1].

@@ -3,7 +3,7 @@
 
 use glam::Vec3;
 
-use super::skeleton::Proportions;
+use super::proportions::Proportions;
 
 /// Radius of an eyeball.
 pub(crate) const EYE_RADIUS: f32 = 0.012;

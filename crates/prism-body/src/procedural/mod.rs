@@ -21,6 +21,7 @@
 
 mod head;
 mod parts;
+mod proportions;
 mod rig;
 mod shape;
 mod skeleton;
@@ -29,7 +30,7 @@ mod tube;
 use super::joints::{NUM_BETAS, NUM_EXPRESSION, NUM_JOINTS, smplx_parents};
 use super::model::{BodyArrays, BodyModel, NUM_SHAPE_COEFFS};
 use parts::Assembly;
-use skeleton::Proportions;
+use proportions::Proportions;
 
 /// The `model` string of [`crate::BodyParams`] for the procedural model of `seed`.
 pub fn model_name(seed: u64) -> String {

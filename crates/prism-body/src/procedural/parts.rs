@@ -7,7 +7,8 @@
 use glam::Vec3;
 
 use super::head::{EYE_RADIUS, Head, uv_sphere};
-use super::skeleton::{Proportions, finger_layout, rest_joints};
+use super::proportions::Proportions;
+use super::skeleton::{finger_layout, rest_joints};
 use super::tube::{Section, Tube, TubeVertex};
 use crate::joints::{Finger, NUM_JOINTS, joint};
 

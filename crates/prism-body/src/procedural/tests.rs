@@ -4,7 +4,8 @@ use std::collections::HashMap;
 
 use glam::Vec3;
 
-use super::skeleton::{Proportions, rest_joints};
+use super::proportions::Proportions;
+use super::skeleton::rest_joints;
 use crate::joints::{NUM_JOINTS, joint};
 use crate::{BodyModel, BodyParams};
 

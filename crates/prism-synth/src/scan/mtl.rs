@@ -1,5 +1,9 @@
 //! Wavefront MTL material libraries: the parts an unlit renderer needs (`newmtl`, `Kd`,
 //! `map_Kd`).
+//!
+//! Hand-written for the reasons in `obj.rs`: tobj's MTL reader has no line numbers, panics on a
+//! one-value `Kd`, keeps a `map_Kd`'s options in its file name and drops statements before the
+//! first `newmtl` without an error.
 
 use std::path::Path;
 
