@@ -51,27 +51,23 @@ pub fn write_mask_png(path: &Path, mask: &Mask) -> Result<()> {
 
 /// Reads an image as float RGB in [0, 1] (8-bit values / 255; alpha dropped).
 pub fn read_rgb(path: &Path) -> Result<Rgb32FImage> {
-    let img = image::open(path).map_err(|source| match source {
-        image::ImageError::IoError(e) => DataError::io(path, e),
-        source => DataError::Image {
-            path: path.to_path_buf(),
-            source,
-        },
-    })?;
-    Ok(img.to_rgb32f())
+    Ok(open_image(path)?.to_rgb32f())
 }
 
 /// Reads a grey image as a float mask in [0, 1].
 pub fn read_mask(path: &Path) -> Result<Mask> {
-    let img = image::open(path).map_err(|source| match source {
+    Ok(open_image(path)?.to_luma32f())
+}
+
+/// Decodes an image file; errors name the file (I/O apart from decoding).
+fn open_image(path: &Path) -> Result<image::DynamicImage> {
+    image::open(path).map_err(|source| match source {
         image::ImageError::IoError(e) => DataError::io(path, e),
         source => DataError::Image {
             path: path.to_path_buf(),
             source,
         },
-    })?;
-    let grey = img.to_luma32f();
-    Ok(grey)
+    })
 }
 
 /// Writes a point map as a float32 `.npy` of shape `[H, W, 3]`.
