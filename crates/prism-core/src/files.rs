@@ -24,17 +24,12 @@ pub fn write_atomic(
     write: impl FnOnce(&mut dyn Write) -> io::Result<()>,
 ) -> io::Result<()> {
     let staged = Staged::create(path)?;
-    let result = (|| {
-        let mut out = BufWriter::new(&staged.file);
-        write(&mut out)?;
-        out.flush()?;
-        drop(out);
-        staged.file.sync_all()
-    })();
-    match result {
-        Ok(()) => staged.publish(path),
-        Err(e) => Err(e),
-    }
+    let mut out = BufWriter::new(&staged.file);
+    write(&mut out)?;
+    out.flush()?;
+    drop(out);
+    staged.file.sync_all()?;
+    staged.publish(path)
 }
 
 /// Writes `bytes` to `path` atomically (see [`write_atomic`]).
@@ -111,7 +106,10 @@ impl Staged {
             None => {
                 // Straight to the target when it does not exist yet: no name in between.
                 match unnamed::link(&self.file, path) {
-                    Ok(()) => return sync_folder(path),
+                    Ok(()) => {
+                        sync_folder(path);
+                        return Ok(());
+                    }
                     Err(e) if e.kind() == io::ErrorKind::AlreadyExists => {}
                     Err(e) => return Err(e),
                 }
@@ -126,7 +124,8 @@ impl Staged {
             let _ = fs::remove_file(&name);
             return Err(e);
         }
-        sync_folder(path)
+        sync_folder(path);
+        Ok(())
     }
 }
 
@@ -140,11 +139,10 @@ impl Drop for Staged {
 
 /// Syncs the folder of `path` so that the rename itself survives a power cut (best effort:
 /// some platforms cannot open a folder for syncing).
-fn sync_folder(path: &Path) -> io::Result<()> {
+fn sync_folder(path: &Path) {
     if let Ok(dir) = File::open(folder(path)) {
         let _ = dir.sync_all();
     }
-    Ok(())
 }
 
 #[cfg(target_os = "linux")]

@@ -316,7 +316,7 @@ pub fn write_checkpoint_files(dir: &Path, contents: &CheckpointContents<'_>) -> 
     )?;
     write_json(&dir.join(files::STATE), contents.state)?;
     let config_path = dir.join(files::CONFIG);
-    fs::write(&config_path, contents.config.to_toml())
+    prism_core::files::write_bytes(&config_path, contents.config.to_toml().as_bytes())
         .map_err(|e| TrainError::io(&config_path, e))?;
     Ok(())
 }

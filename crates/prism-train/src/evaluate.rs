@@ -26,12 +26,13 @@ use serde::Serialize;
 
 use crate::checkpoint::{CHECKPOINTS_DIR, load_model};
 use crate::error::{Result, TrainError};
-use crate::images::{HostImages, error_map, save_png, tile};
+use crate::images::{error_map, save_png, tile};
 use crate::log::METRICS_FILE;
 use crate::predict::{Pairs, forward_pairs, inference_model, synthesise};
 use crate::report::{EvaluationFiles, write_evaluation};
 use crate::tally::{MeanScores, MethodScores, PerAngle, Tally};
 use crate::validate::validation_views;
+use prism_core::images::HostImages;
 
 /// How an evaluation runs.
 #[derive(Clone, Debug)]

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use image::codecs::gif::{GifEncoder, Repeat};
 use image::{Delay, Frame, Rgb, RgbImage, RgbaImage};
-pub use prism_core::images::{HostImages, to_u8};
+use prism_core::images::to_u8;
 use prism_core::{files, images};
 
 use crate::error::{Result, TrainError};

@@ -16,8 +16,9 @@ use prism_model::Prism;
 
 use crate::checkpoint::load_model;
 use crate::error::{Result, TrainError};
-use crate::images::{HostImages, save_gif, save_png};
+use crate::images::{save_gif, save_png};
 use crate::predict::{Pairs, forward_pairs, inference_model, synthesise};
+use prism_core::images::HostImages;
 
 /// Fraction of the image height the person's bounding box spans in the frontal view of the
 /// training data. The protocol's 1.80 m subject seen from 2.0 m with a focal length of one
