@@ -50,6 +50,8 @@ enum Command {
     Evaluate(commands::evaluate::EvaluateArgs),
     /// Novel views of a person from one photo (a +-30 degree sweep as PNGs and a GIF).
     Infer(commands::infer::InferArgs),
+    /// Serve this machine's device to trainers on other machines (`--devices remote:...`).
+    Serve(commands::serve::ServeArgs),
     /// The main job: dataset, teacher, student, evaluation of both, a table of the results.
     Quickstart(commands::quickstart::QuickstartArgs),
 }
@@ -69,6 +71,7 @@ fn main() {
         Command::Evaluate(args) => args.run(),
         Command::Infer(args) => args.run(),
         Command::Quickstart(args) => args.run(),
+        Command::Serve(args) => args.run(),
     };
     if let Err(err) = result {
         eprintln!("error: {err:#}");

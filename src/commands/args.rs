@@ -8,6 +8,7 @@ use clap::Args;
 use prism_core::BackendKind;
 use prism_data::SynthOptions;
 use prism_losses::ImageScores;
+use prism_remote::{DeviceList, read_token};
 use prism_synth::ensure_synthetic_dataset;
 use prism_train::{Checkpoint, RunOptions, RunSummary};
 
@@ -82,10 +83,16 @@ pub struct RunArgs {
     /// Continue the run in the run folder from its latest checkpoint, exactly where it stopped.
     #[arg(long)]
     pub resume: bool,
-    /// Devices to train on, data parallel (on the CPU backends: worker threads sharing the one
-    /// CPU device).
-    #[arg(long, default_value_t = 1, value_name = "N")]
-    pub devices: usize,
+    /// Devices to train on, data parallel: a count of local devices (on the CPU backends:
+    /// worker threads sharing the one CPU device), or a comma list of `local`,
+    /// `remote:ws://HOST:PORT` and `remote:iroh:NODE_ID[@HOST:PORT]` (devices served by
+    /// `prism serve`; the first device is the main one).
+    // Parsed in `options`, not by clap: one error line naming the entry at fault.
+    #[arg(long, default_value = "1", value_name = "N|LIST")]
+    pub devices: String,
+    /// The file holding the token of the servers in --devices [default: $PRISM_TOKEN].
+    #[arg(long, value_name = "FILE")]
+    pub token_file: Option<PathBuf>,
     #[command(flatten)]
     pub job: JobArgs,
 }
@@ -102,10 +109,17 @@ impl RunArgs {
         synth: &SynthOptions,
     ) -> anyhow::Result<RunOptions> {
         let progress = !self.job.quiet;
+        let devices: DeviceList = self.devices.parse()?;
+        let token = if devices.has_remote() {
+            Some(read_token(self.token_file.as_deref())?)
+        } else {
+            None
+        };
         Ok(RunOptions {
             steps: self.steps,
             resume: self.resume,
-            devices: self.devices,
+            devices,
+            token,
             progress,
             lpips_weights: self.job.lpips_weights.clone(),
             ..RunOptions::new(

@@ -12,5 +12,6 @@ pub mod infer;
 pub mod info;
 pub mod metrics;
 pub mod quickstart;
+pub mod serve;
 pub mod splat;
 pub mod train;

@@ -10,6 +10,7 @@
 //! intrinsics and a camera-to-world matrix, pixel centres at `(x + 0.5, y + 0.5)`, images as
 //! `[B, C, H, W]` tensors.
 
+mod detour;
 pub mod error;
 #[cfg(any(feature = "wgpu", feature = "cuda"))]
 mod launch;

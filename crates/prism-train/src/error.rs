@@ -105,6 +105,9 @@ pub enum TrainError {
         message: String,
     },
     /// A training worker failed on one of the devices.
+    /// A device of `--devices` cannot be used.
+    #[error(transparent)]
+    Device(#[from] prism_remote::ConnectError),
     #[error("training step failed: {0}")]
     Worker(String),
 }

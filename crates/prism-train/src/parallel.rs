@@ -12,35 +12,61 @@
 use burn::data::dataloader::{DataLoaderIterator, Progress};
 use burn::data::dataset::DatasetError;
 use burn::optim::{GradientsAccumulator, GradientsParams};
+use burn::backend::DispatchDevice;
 use burn::tensor::Device;
 use burn::train::TrainStep;
 use burn::train::train::MultiDevicesTrainStep;
 use prism_core::BackendKind;
+use prism_remote::{DeviceList, Fingerprint, config_digest};
 
+use crate::config::TrainingConfig;
 use crate::error::{Result, TrainError};
 use crate::step::{StepValues, TrainItem, Trainee};
 
-/// The autodiff devices of a run: `count` devices of `backend`, the first one the main device.
+/// The autodiff devices of a run, the first one the main device: `list`'s local devices on
+/// `backend`, and its served devices (`prism serve`) connected with `token` and checked
+/// against `fingerprint` (this release and the run's model config).
 ///
-/// The CPU backends (ndarray, flex) have a single device each; several "devices" are then
-/// the same CPU device used by several worker threads, which exercises the multi-device path
-/// (and can use idle cores) but is not faster than one device with its own threads. With the
-/// `wgpu` feature, wgpu gives the discrete GPUs `0..count` (one device: wgpu's default).
+/// The CPU backends (ndarray, flex) have a single device each; several local "devices" are
+/// then the same CPU device used by several worker threads, which exercises the multi-device
+/// path (and can use idle cores) but is not faster than one device with its own threads. With
+/// the `wgpu` feature, wgpu gives the discrete GPUs `0..count` (one device: wgpu's default).
 ///
 /// # Errors
-/// A backend that is not compiled in, or a count of 0.
-pub fn training_devices(backend: BackendKind, count: usize) -> Result<Vec<Device>> {
-    if count == 0 {
-        return Err(TrainError::Worker("--devices must be at least 1".into()));
-    }
+/// A backend that is not compiled in; a served device that cannot be used.
+pub fn training_devices(
+    backend: BackendKind,
+    list: &DeviceList,
+    token: Option<&str>,
+    fingerprint: &Fingerprint,
+) -> Result<Vec<Device>> {
+    let count = list.len();
     #[cfg(feature = "wgpu")]
-    if backend == BackendKind::Wgpu && count > 1 {
+    if backend == BackendKind::Wgpu && count > 1 && !list.has_remote() {
         return Ok((0..count)
             .map(|i| Device::wgpu(burn::tensor::DeviceKind::DiscreteGpu(i)).autodiff())
             .collect());
     }
-    let device = backend.autodiff_device()?;
-    Ok(vec![device; count])
+    if !list.has_remote() {
+        return Ok(vec![backend.autodiff_device()?; count]);
+    }
+    let devices = prism_remote::connect(list, &backend.device()?, token, fingerprint)?;
+    Ok(devices.into_iter().map(Device::autodiff).collect())
+}
+
+/// What a trainer expects of every server: this release, and the digest of `config`'s model
+/// (a server started with another model config is refused).
+pub fn fingerprint(config: &TrainingConfig) -> Fingerprint {
+    let model = serde_json::to_string(&config.model).expect("a model config serialises");
+    Fingerprint::this_build(Some(config_digest(&model)))
+}
+
+/// Whether `device` is served by another process (Burn's remote backend).
+pub fn is_remote(device: &Device) -> bool {
+    matches!(
+        device.clone().inner().as_dispatch(),
+        DispatchDevice::Remote(_)
+    )
 }
 
 /// Runs the forward and backward passes of a step's shares on their devices.

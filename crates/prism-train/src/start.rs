@@ -4,6 +4,7 @@
 use std::fs;
 use std::path::Path;
 
+use burn::module::Module;
 use burn::tensor::Device;
 use prism_model::Prism;
 
@@ -12,6 +13,7 @@ use crate::checkpoint::{
 };
 use crate::config::TrainingConfig;
 use crate::error::{Result, TrainError};
+use crate::parallel::is_remote;
 use crate::trainer::{RunOptions, Task};
 
 /// The run folder's copy of the config it was started with.
@@ -114,9 +116,21 @@ pub fn initial_model(
             new_blocks: checkpoint.state.new_blocks.clone(),
         });
     }
-    device.seed(config.train.seed);
+    // A served main device is initialised on this machine and sent: the same weights as a
+    // local run, whatever the server's random generator.
+    let host = if is_remote(device) {
+        options.backend.autodiff_device()?
+    } else {
+        device.clone()
+    };
+    host.seed(config.train.seed);
+    let model = config.model.init(&host);
     Ok(Start {
-        model: config.model.init(device),
+        model: if host == *device {
+            model
+        } else {
+            model.fork(device)
+        },
         step: 0,
         new_blocks: Vec::new(),
     })

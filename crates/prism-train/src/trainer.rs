@@ -15,13 +15,14 @@ use prism_core::BackendKind;
 use prism_data::{DatasetReader, SampleDataset, SplitKind, TargetSelection};
 use prism_losses::ImageScores;
 use prism_model::Prism;
+use prism_remote::DeviceList;
 use serde_json::Value;
 
 use crate::cadence::Cadence;
 use crate::config::TrainingConfig;
 use crate::data::{DataOrder, Prefetcher};
 use crate::error::{Result, TrainError};
-use crate::parallel::training_devices;
+use crate::parallel::{fingerprint, training_devices};
 use crate::start::{initial_model, prepare_run_folder};
 use crate::step::StepLoss;
 use crate::training_step::TrainingStep;
@@ -76,8 +77,10 @@ pub struct RunOptions {
     pub init: Option<PathBuf>,
     /// The backend.
     pub backend: BackendKind,
-    /// Training devices (data parallel).
-    pub devices: usize,
+    /// Training devices (data parallel): local ones, or devices served by `prism serve`.
+    pub devices: DeviceList,
+    /// The credential the servers of `devices` check.
+    pub token: Option<String>,
     /// Draw a progress bar (and print validations) on stderr.
     pub progress: bool,
     /// LPIPS weight file (default: the project's search order).
@@ -95,7 +98,8 @@ impl RunOptions {
             resume: false,
             init: None,
             backend,
-            devices: 1,
+            devices: DeviceList::default(),
+            token: None,
             progress: false,
             lpips_weights: None,
         }
@@ -149,10 +153,25 @@ pub fn train(config: &TrainingConfig, task: &dyn Task, options: &RunOptions) -> 
     let resumed = prepare_run_folder(&options.out, &config, task, options)?;
     let reader = DatasetReader::open(&options.data)?;
     let train_set = training_set(&reader, &config)?;
-    let devices = training_devices(options.backend, options.devices)?;
+    let devices = training_devices(
+        options.backend,
+        &options.devices,
+        options.token.as_deref(),
+        &fingerprint(&config),
+    )?;
     let start = initial_model(&config, resumed.as_ref(), options, &devices[0])?;
     let first = start.step;
     check_unfinished(options, first, config.train.steps)?;
+    if let Some(before) = resumed.as_ref().map(|c| c.state.devices)
+        && before != devices.len()
+        && options.progress
+    {
+        eprintln!(
+            "resuming on {} devices (the run trained on {before} so far): each step's batch is              split into {} shares instead of {before}; the result equals the run's up to float              rounding, not bit for bit",
+            devices.len(),
+            devices.len().min(config.train.batch_size),
+        );
+    }
     let data = TaskData {
         background: reader.meta().background,
     };

@@ -155,7 +155,7 @@ fn two_devices_train_like_one() {
     let two = tempfile::tempdir().unwrap();
     train(&config, &TeacherTask::default(), &options(one.path())).unwrap();
     let mut o = options(two.path());
-    o.devices = 2;
+    o.devices = prism_remote::DeviceList::local(2);
     let summary = train(&config, &TeacherTask::default(), &o).unwrap();
     assert_eq!(summary.steps, 2);
     let state = Checkpoint::read(two.path()).unwrap().state;

@@ -1,0 +1,18 @@
+//! Training across machines on Burn's remote backend.
+//!
+//! - [`serve`]: `prism serve`, this machine's devices served to a trainer;
+//! - [`DeviceList`]: the `--devices` list of a run, local and served devices;
+//! - [`connect`]: a run's devices connected, each server checked by prism's [`handshake`];
+//! - [`read_token`]: the shared credential, from a file or the environment.
+
+pub mod connect;
+pub mod credential;
+pub mod handshake;
+pub mod serve;
+pub mod spec;
+
+pub use connect::{ConnectError, connect};
+pub use credential::{CredentialError, TOKEN_ENV, read_token};
+pub use handshake::{Fingerprint, config_digest};
+pub use serve::{ServeError, ServeOptions, TransportKind, serve};
+pub use spec::{DeviceList, DeviceSpec, SpecError};

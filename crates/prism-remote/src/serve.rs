@@ -1,0 +1,200 @@
+//! `prism serve`: this machine's devices served to trainers on other machines, through Burn's
+//! remote backend (`burn::server`), behind a shared token, answering prism's handshake.
+
+use std::fmt;
+use std::net::{SocketAddr, TcpListener, UdpSocket};
+use std::path::PathBuf;
+use std::str::FromStr;
+
+use burn::server::{
+    AuthorizationRequest, IrohIdentity, IrohRelays, IrohTransport, PeerAuthorizer, RemoteServer,
+    TokenAuthorizer, Transport, WebSocketTransport,
+};
+use burn::tensor::Device;
+
+use crate::handshake::{self, Fingerprint};
+
+/// How trainers reach the server.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum TransportKind {
+    /// Iroh (QUIC): authenticated and encrypted, across any network. The default.
+    #[default]
+    Iroh,
+    /// A plain WebSocket: unencrypted, for a trusted network.
+    WebSocket,
+}
+
+impl FromStr for TransportKind {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, String> {
+        match text {
+            "iroh" => Ok(Self::Iroh),
+            "websocket" | "ws" => Ok(Self::WebSocket),
+            _ => Err(format!(
+                "unknown transport `{text}` (expected iroh or websocket)"
+            )),
+        }
+    }
+}
+
+impl fmt::Display for TransportKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Self::Iroh => "iroh",
+            Self::WebSocket => "websocket",
+        })
+    }
+}
+
+/// What `prism serve` serves, where, and to whom.
+pub struct ServeOptions {
+    /// The address to listen on (`0.0.0.0:7000`; port 0 picks a free one).
+    pub listen: SocketAddr,
+    /// The transport.
+    pub transport: TransportKind,
+    /// The token trainers must present.
+    pub token: String,
+    /// The devices served (all of one backend).
+    pub devices: Vec<Device>,
+    /// The handshake's answer.
+    pub fingerprint: Fingerprint,
+    /// Iroh: the file holding the server's secret key (created when missing), so that its node
+    /// id survives a restart; a new id at every start without it.
+    pub identity: Option<PathBuf>,
+    /// Iroh: also reachable through n0's public relays (by node id alone, across NATs).
+    pub public_relays: bool,
+}
+
+/// A server that cannot start or stopped on an error.
+#[derive(Debug, thiserror::Error)]
+pub enum ServeError {
+    /// The listening address cannot be bound.
+    #[error("cannot listen on {address}: {source}")]
+    Listen {
+        /// The address.
+        address: SocketAddr,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The Iroh identity file cannot be read or created.
+    #[error("cannot read or create the Iroh identity {}: {source}", path.display())]
+    Identity {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// Burn's server failed.
+    #[error("{0}")]
+    Burn(String),
+}
+
+/// Serves `options.devices` until SIGINT or SIGTERM. `announce` receives, once the server
+/// listens, the `--devices` entry a trainer uses to reach device 0.
+///
+/// # Errors
+/// The address cannot be bound, or Burn's server fails.
+pub fn serve(options: ServeOptions, announce: impl FnOnce(&str)) -> Result<(), ServeError> {
+    let authorizer = Doorkeeper(
+        TokenAuthorizer::new(options.token.as_str())
+            .map_err(|_| ServeError::Burn("the token is empty".into()))?,
+    );
+    let Some(first) = options.devices.first() else {
+        return Err(ServeError::Burn("no device to serve".into()));
+    };
+    let server = handshake::register(
+        RemoteServer::new(options.devices.clone()).with_authorizer(authorizer),
+        first,
+        &options.fingerprint,
+    )
+    .map_err(ServeError::Burn)?;
+    let (transport, entry) = match options.transport {
+        TransportKind::WebSocket => {
+            let listener =
+                TcpListener::bind(options.listen).map_err(|source| ServeError::Listen {
+                    address: options.listen,
+                    source,
+                })?;
+            let bound = listener.local_addr().map_err(|source| ServeError::Listen {
+                address: options.listen,
+                source,
+            })?;
+            (
+                Transport::from(WebSocketTransport::from_listener(listener)),
+                format!("remote:ws://{}", shown(bound)),
+            )
+        }
+        TransportKind::Iroh => {
+            let identity = match &options.identity {
+                Some(path) => {
+                    IrohIdentity::load_or_create(path).map_err(|source| ServeError::Identity {
+                        path: path.clone(),
+                        source,
+                    })?
+                }
+                None => IrohIdentity::random(),
+            };
+            let port = free_udp_port(options.listen)?;
+            let relays = if options.public_relays {
+                IrohRelays::Public
+            } else {
+                IrohRelays::Disabled
+            };
+            let transport = IrohTransport::new(identity)
+                .with_relays(relays)
+                .with_port(port);
+            let address = SocketAddr::new(options.listen.ip(), port);
+            let entry = format!("remote:iroh:{}@{}", transport.id(), shown(address));
+            (Transport::from(transport), entry)
+        }
+    };
+    announce(&entry);
+    server
+        .serve(transport)
+        .map_err(|e| ServeError::Burn(e.to_string()))
+}
+
+/// The port to bind Iroh's UDP socket on: `listen`'s, or a free one for port 0.
+fn free_udp_port(listen: SocketAddr) -> Result<u16, ServeError> {
+    if listen.port() != 0 {
+        return Ok(listen.port());
+    }
+    UdpSocket::bind(listen)
+        .and_then(|socket| socket.local_addr())
+        .map(|address| address.port())
+        .map_err(|source| ServeError::Listen {
+            address: listen,
+            source,
+        })
+}
+
+/// `address` as a trainer dials it: an unspecified IP (`0.0.0.0`) shown as this machine's
+/// host name.
+fn shown(address: SocketAddr) -> String {
+    if !address.ip().is_unspecified() {
+        return address.to_string();
+    }
+    let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|h| h.trim().to_string())
+        .unwrap_or_else(|_| "THIS_HOST".into());
+    format!("{host}:{}", address.port())
+}
+
+/// Burn's token check, with one line on the server's stderr for every session it opens or
+/// refuses.
+struct Doorkeeper(TokenAuthorizer);
+
+impl PeerAuthorizer for Doorkeeper {
+    fn authorize(&self, request: AuthorizationRequest<'_>) -> Result<(), String> {
+        let (client, device) = (request.client, request.device_index);
+        let verdict = self.0.authorize(request);
+        match &verdict {
+            Ok(()) => eprintln!("prism serve: session opened for {client} (device {device})"),
+            Err(_) => eprintln!(
+                "prism serve: refused {client} (device {device}): wrong or missing credential"
+            ),
+        }
+        verdict
+    }
+}

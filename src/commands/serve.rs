@@ -1,0 +1,68 @@
+//! `prism serve`: this machine's devices served to trainers on other machines.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use clap::Args;
+use prism_core::BackendKind;
+use prism_remote::{Fingerprint, ServeOptions, TransportKind, read_token, serve};
+use prism_train::{TrainingConfig, fingerprint};
+
+/// Arguments of `prism serve`.
+#[derive(Args, Debug)]
+pub struct ServeArgs {
+    /// The address to listen on; port 0 picks a free one.
+    #[arg(long, value_name = "ADDR", default_value = "0.0.0.0:7000")]
+    listen: SocketAddr,
+    /// The file holding the token trainers must present [default: $PRISM_TOKEN].
+    #[arg(long, value_name = "FILE")]
+    token_file: Option<PathBuf>,
+    /// iroh (authenticated, encrypted; any network) or websocket (unencrypted; a trusted
+    /// network only).
+    #[arg(long, default_value = "iroh")]
+    transport: TransportKind,
+    /// The backend whose device is served: ndarray, flex, wgpu or cuda.
+    #[arg(long, default_value = "flex")]
+    backend: BackendKind,
+    /// Serve only trainers of this config's model (refused before any step otherwise).
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    /// Iroh: the server's secret key file (created when missing), so that its node id stays
+    /// the same across restarts [default: a new id at every start].
+    #[arg(long, value_name = "FILE")]
+    identity: Option<PathBuf>,
+    /// Iroh: also reachable through n0's public relays, by node id alone.
+    #[arg(long)]
+    public_relays: bool,
+}
+
+impl ServeArgs {
+    /// Serves until SIGINT or SIGTERM, after printing the `--devices` entry that reaches it.
+    pub fn run(self) -> anyhow::Result<()> {
+        let token = read_token(self.token_file.as_deref())?;
+        let fingerprint = match &self.config {
+            Some(path) => fingerprint(&TrainingConfig::load(path)?),
+            None => Fingerprint::this_build(None),
+        };
+        let options = ServeOptions {
+            listen: self.listen,
+            transport: self.transport,
+            token,
+            devices: vec![self.backend.device()?],
+            fingerprint,
+            identity: self.identity,
+            public_relays: self.public_relays,
+        };
+        let backend = self.backend;
+        serve(options, |entry| {
+            // The one line to paste on the trainer's side; stdout, flushed, for scripts.
+            println!("{entry}");
+            eprintln!(
+                "prism serve: serving the {backend} device; train with --devices {entry} \
+                 --token-file FILE (Ctrl+C stops)"
+            );
+        })?;
+        eprintln!("prism serve: stopped");
+        Ok(())
+    }
+}

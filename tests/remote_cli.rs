@@ -1,0 +1,264 @@
+//! Training on devices served by `prism serve`, end to end through the built binary on
+//! loopback: two servers (WebSocket, then Iroh) train like one local device with the same
+//! global batch; a killed server stops the trainer with its name and the run resumes; a
+//! server of another model config, a wrong token and malformed or unreachable devices are
+//! refused with one clear line.
+
+mod common;
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::OnceLock;
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use prism_core::BackendKind;
+use prism_synth::ensure_synthetic_dataset;
+use prism_train::{Checkpoint, TrainingConfig, configs_dir, list_checkpoints, parameter_values};
+
+use common::{failure, output, prism, prism_with_cache, s, scratch, stderr, success};
+
+/// The cache folder of this test process, holding the tiny synthetic dataset.
+fn cache() -> PathBuf {
+    static CACHE: OnceLock<PathBuf> = OnceLock::new();
+    CACHE
+        .get_or_init(|| {
+            let dir = scratch("cache");
+            // SAFETY: set once, before any child process is spawned or the variable is read.
+            unsafe { std::env::set_var(prism_synth::CACHE_ENV, &dir) };
+            ensure_synthetic_dataset(&tiny_config(2).data, false).unwrap();
+            dir
+        })
+        .clone()
+}
+
+/// configs/tiny.toml at 32 px without LPIPS, `steps` steps of 2 samples, a checkpoint at
+/// every step, on 4 synthetic subjects of 32 px.
+fn tiny_config(steps: usize) -> TrainingConfig {
+    let mut c = TrainingConfig::load(configs_dir().join("tiny.toml")).unwrap();
+    c.model.resolution = 32;
+    c.losses.lpips = 0.0;
+    c.train.steps = steps;
+    c.train.batch_size = 2;
+    c.train.checkpoint_every = 1;
+    c.train.keep_checkpoints = 2;
+    c.train.validate_every = 0;
+    c.train.validation_views = 2;
+    c.data.subjects = 4;
+    c.data.resolution = 32;
+    c.data.test_fraction = 0.25;
+    c
+}
+
+/// `config` written into `dir`, and a token file beside it.
+fn setup(dir: &Path, config: &TrainingConfig) -> (PathBuf, PathBuf) {
+    let path = dir.join("test.toml");
+    std::fs::write(&path, config.to_toml()).unwrap();
+    let token = dir.join("token");
+    std::fs::write(&token, "remote-test-token\n").unwrap();
+    (path, token)
+}
+
+/// A `prism serve` child process on a free loopback port; killed when dropped.
+struct Server {
+    child: Child,
+    /// The `--devices` entry it printed.
+    entry: String,
+}
+
+impl Server {
+    fn start(transport: &str, token: &Path, extra: &[&str]) -> Self {
+        let mut child = prism(&[
+            "serve",
+            "--listen",
+            "127.0.0.1:0",
+            "--transport",
+            transport,
+            "--token-file",
+            s(token),
+        ])
+        .args(extra)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+        let stdout = child.stdout.take().unwrap();
+        let (send, receive) = mpsc::channel();
+        std::thread::spawn(move || {
+            let mut line = String::new();
+            let _ = BufReader::new(stdout).read_line(&mut line);
+            let _ = send.send(line);
+        });
+        let entry = receive
+            .recv_timeout(Duration::from_secs(60))
+            .expect("prism serve printed its address");
+        Self {
+            child,
+            entry: entry.trim().to_string(),
+        }
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// `prism train-teacher` on flex with this process's cache, not yet run.
+fn train(config: &Path, out: &Path, extra: &[&str]) -> Command {
+    let mut cmd = prism_with_cache(&cache(), &["train-teacher"]);
+    cmd.args(["--config", s(config), "--out", s(out), "--backend", "flex", "--quiet"])
+        .args(extra);
+    cmd
+}
+
+fn weights(dir: &Path) -> Vec<Vec<f32>> {
+    let device = BackendKind::Flex.device().unwrap();
+    parameter_values(&Checkpoint::read(dir).unwrap().load_model(&device).unwrap())
+}
+
+fn max_difference(a: &[Vec<f32>], b: &[Vec<f32>]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(b)
+        .flat_map(|(x, y)| x.iter().zip(y).map(|(p, q)| (p - q).abs()))
+        .fold(0.0, f32::max)
+}
+
+#[test]
+fn two_served_devices_train_like_one_local_device() {
+    let dir = scratch("equivalence");
+    let (config, token) = setup(&dir, &tiny_config(2));
+    let local = dir.join("local");
+    success(train(&config, &local, &[]));
+    let expected = weights(&local);
+    for transport in ["websocket", "iroh"] {
+        let servers = [
+            Server::start(transport, &token, &[]),
+            Server::start(transport, &token, &["--config", s(&config)]),
+        ];
+        let devices = format!("{},{}", servers[0].entry, servers[1].entry);
+        let out = dir.join(transport);
+        success(train(
+            &config,
+            &out,
+            &["--devices", &devices, "--token-file", s(&token)],
+        ));
+        assert_eq!(Checkpoint::read(&out).unwrap().state.devices, 2);
+        let diff = max_difference(&weights(&out), &expected);
+        assert!(diff < 1e-5, "{transport}: max difference {diff}");
+    }
+}
+
+#[test]
+fn a_killed_server_stops_the_trainer_and_the_run_resumes() {
+    let dir = scratch("killed");
+    let (config, token) = setup(&dir, &tiny_config(40));
+    let servers = [
+        Server::start("websocket", &token, &[]),
+        Server::start("websocket", &token, &[]),
+    ];
+    let devices = format!("{},{}", servers[0].entry, servers[1].entry);
+    let run = dir.join("run");
+    let mut trainer = train(
+        &config,
+        &run,
+        &["--devices", &devices, "--token-file", s(&token)],
+    )
+    .stdout(Stdio::null())
+    .stderr(Stdio::piped())
+    .spawn()
+    .unwrap();
+    let began = Instant::now();
+    while list_checkpoints(&run).unwrap_or_default().len() < 2 {
+        assert!(trainer.try_wait().unwrap().is_none(), "the run ended early");
+        assert!(began.elapsed() < Duration::from_secs(300), "no checkpoint");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let [first, mut second] = servers;
+    second.child.kill().unwrap();
+    second.child.wait().unwrap();
+    let killed = Instant::now();
+    let status = trainer.wait().unwrap();
+    let err = {
+        let mut text = String::new();
+        std::io::Read::read_to_string(&mut trainer.stderr.take().unwrap(), &mut text).unwrap();
+        text
+    };
+    assert!(!status.success(), "the trainer went on without a server");
+    assert!(
+        killed.elapsed() < Duration::from_secs(120),
+        "stopped after {:?}",
+        killed.elapsed()
+    );
+    assert!(err.contains(&second.entry), "names the server: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+    let (step, last) = list_checkpoints(&run).unwrap().last().unwrap().clone();
+    assert_eq!(Checkpoint::read(&last).unwrap().state.step, step);
+
+    // With the one server left, the batch is re-split (and said so); the run completes.
+    let out = output(
+        train(
+            &config,
+            &run,
+            &["--resume", "--devices", &first.entry, "--token-file", s(&token)],
+        )
+        .env_remove("PRISM_QUIET"),
+    );
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert_eq!(Checkpoint::read(&run).unwrap().state.step, 40);
+}
+
+#[test]
+fn refusals_are_one_clear_line() {
+    let dir = scratch("refusals");
+    let (config, token) = setup(&dir, &tiny_config(1));
+    let run = dir.join("run");
+    let wrong = dir.join("wrong-token");
+    std::fs::write(&wrong, "guess").unwrap();
+    let small = configs_dir().join("small.toml");
+    let server = Server::start("websocket", &token, &["--config", s(&small)]);
+
+    // Another model config.
+    let err = failure(train(
+        &config,
+        &run,
+        &["--devices", &server.entry, "--token-file", s(&token)],
+    ));
+    assert!(err.contains("another model config"), "{err}");
+    // A wrong token; the server goes on serving (the config check answers again).
+    let err = failure(train(
+        &config,
+        &run,
+        &["--devices", &server.entry, "--token-file", s(&wrong)],
+    ));
+    assert!(err.contains("refused the credential"), "{err}");
+    let err = failure(train(
+        &config,
+        &run,
+        &["--devices", &server.entry, "--token-file", s(&token)],
+    ));
+    assert!(err.contains("another model config"), "{err}");
+    // No token at all.
+    let err = failure(train(&config, &run, &["--devices", &server.entry]).env_remove("PRISM_TOKEN"));
+    assert!(err.contains("--token-file"), "{err}");
+    // Malformed lists, and an address where nothing listens.
+    for (devices, expected) in [
+        ("remote:ws://127.0.0.1", "needs a port"),
+        ("gpu0", "expected a device count"),
+        ("remote:ws://127.0.0.1:1", "cannot be reached"),
+    ] {
+        let began = Instant::now();
+        let err = failure(train(
+            &config,
+            &run,
+            &["--devices", devices, "--token-file", s(&token)],
+        ));
+        assert!(err.contains(expected), "{devices}: {err}");
+        assert!(began.elapsed() < Duration::from_secs(60), "{devices}");
+    }
+    assert!(!run.join("checkpoints").exists() || list_checkpoints(&run).unwrap().is_empty());
+}
