@@ -57,6 +57,17 @@ enum Command {
 }
 
 fn main() {
+    // A training worker's panic (a served device that stopped answering, say) comes back to
+    // the trainer, which reports it as one error naming the device, and so does a panic the
+    // trainer catches on the main thread: printing them where they happen too would bury that
+    // line. Other panics of the main thread print as usual.
+    let default_hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let main = std::thread::current().name() == Some("main");
+        if main && !prism_train::served::reports_panics() {
+            default_hook(info);
+        }
+    }));
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Body(cmd) => cmd.run(),

@@ -3,11 +3,14 @@
 //! step. Every connection is bounded in time, so an address that never answers is an error,
 //! not a hang.
 
+use std::net::{TcpStream, ToSocketAddrs};
 use std::sync::mpsc;
 use std::thread;
 use std::time::Duration;
 
-use burn::remote::{ConnectError as BurnConnectError, EndpointAddr, IrohHost, IrohRelays, RemoteHost};
+use burn::remote::{
+    ConnectError as BurnConnectError, EndpointAddr, IrohHost, IrohRelays, RemoteHost,
+};
 use burn::tensor::Device;
 
 use crate::handshake::{self, Fingerprint};
@@ -55,7 +58,11 @@ pub fn connect(
 }
 
 /// Connects one served device and checks its server, within [`CONNECT_TIMEOUT`].
-fn connect_one(spec: &DeviceSpec, token: &str, fingerprint: &Fingerprint) -> Result<Device, String> {
+fn connect_one(
+    spec: &DeviceSpec,
+    token: &str,
+    fingerprint: &Fingerprint,
+) -> Result<Device, String> {
     let (host, index) = host_of(spec, token);
     let ours = fingerprint.clone();
     let (send, receive) = mpsc::channel();
@@ -68,7 +75,9 @@ fn connect_one(spec: &DeviceSpec, token: &str, fingerprint: &Fingerprint) -> Res
             .map_err(explain)
             .and_then(|device| {
                 let served = handshake::ask(&device).map_err(|e| {
-                    format!("the server did not answer prism's handshake ({e}): is it a `prism serve`?")
+                    format!(
+                        "the server did not answer prism's handshake ({e}): is it a `prism serve`?"
+                    )
                 })?;
                 match ours.mismatch(&served) {
                     Some(why) => Err(why),
@@ -114,4 +123,14 @@ fn explain(error: BurnConnectError) -> String {
         }
         other => other.to_string(),
     }
+}
+
+/// Whether the server of the served device `spec` accepts connections now: for WebSocket a TCP
+/// connection within 3 s; `None` where that cannot be told without a session (Iroh, local).
+pub fn accepts_connections(spec: &DeviceSpec) -> Option<bool> {
+    let DeviceSpec::WebSocket { url, .. } = spec else {
+        return None;
+    };
+    let address = url.strip_prefix("ws://")?.to_socket_addrs().ok()?.next()?;
+    Some(TcpStream::connect_timeout(&address, Duration::from_secs(3)).is_ok())
 }

@@ -11,7 +11,7 @@ pub mod handshake;
 pub mod serve;
 pub mod spec;
 
-pub use connect::{ConnectError, connect};
+pub use connect::{ConnectError, accepts_connections, connect};
 pub use credential::{CredentialError, TOKEN_ENV, read_token};
 pub use handshake::{Fingerprint, config_digest};
 pub use serve::{ServeError, ServeOptions, TransportKind, serve};

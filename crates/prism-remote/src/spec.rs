@@ -48,7 +48,13 @@ impl DeviceSpec {
 
 impl fmt::Display for DeviceSpec {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let index = |i: u32| if i == 0 { String::new() } else { format!("#{i}") };
+        let index = |i: u32| {
+            if i == 0 {
+                String::new()
+            } else {
+                format!("#{i}")
+            }
+        };
         match self {
             Self::Local => f.write_str("local"),
             Self::WebSocket { url, index: i } => write!(f, "remote:{url}{}", index(*i)),
@@ -277,7 +283,10 @@ mod tests {
             ("remote:ws://127.0.0.1", "needs a port"),
             ("remote:ws://127.0.0.1:7000#x", "not a number"),
             ("remote:iroh:not-an-id", "node id is not valid"),
-            ("remote:ws://127.0.0.1:7000,remote:ws://127.0.0.1:7000", "listed twice"),
+            (
+                "remote:ws://127.0.0.1:7000,remote:ws://127.0.0.1:7000",
+                "listed twice",
+            ),
             ("remote:ws://no-such-host.invalid:7000", "cannot resolve"),
         ];
         for (text, expected) in cases {

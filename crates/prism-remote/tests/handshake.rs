@@ -29,7 +29,9 @@ fn start(transport: TransportKind, fingerprint: Fingerprint) -> String {
     };
     thread::spawn(move || {
         let announced = send.clone();
-        if let Err(e) = serve(options, move |entry| announced.send(entry.to_string()).unwrap()) {
+        if let Err(e) = serve(options, move |entry| {
+            announced.send(entry.to_string()).unwrap()
+        }) {
             panic!("serve failed: {e}");
         }
     });
@@ -64,7 +66,10 @@ fn another_release_or_model_config_is_refused_before_any_step() {
         config: None,
     };
     let err = connect_to(&start(TransportKind::WebSocket, older), TOKEN, &ours).unwrap_err();
-    assert!(err.contains("prism 0.0.1") && err.contains("same release"), "{err}");
+    assert!(
+        err.contains("prism 0.0.1") && err.contains("same release"),
+        "{err}"
+    );
 
     let small = Fingerprint::this_build(Some(config_digest("small")));
     let entry = start(TransportKind::Iroh, small);

@@ -38,6 +38,7 @@ pub mod predict;
 pub mod quickstart;
 pub mod report;
 pub mod schedule;
+pub mod served;
 pub mod start;
 pub mod step;
 pub mod student;

@@ -9,18 +9,19 @@
 //! (see [`TrainItem::weight`]) the sum is the gradient of the whole batch's mean loss, and the
 //! optimizer steps once on the main device (burn-train's `MultiDeviceOptim::OptimMainDevice`).
 
+use burn::backend::DispatchDevice;
 use burn::data::dataloader::{DataLoaderIterator, Progress};
 use burn::data::dataset::DatasetError;
 use burn::optim::{GradientsAccumulator, GradientsParams};
-use burn::backend::DispatchDevice;
 use burn::tensor::Device;
 use burn::train::TrainStep;
-use burn::train::train::MultiDevicesTrainStep;
+use burn::train::train::{MultiDeviceStepError, MultiDevicesTrainStep};
 use prism_core::BackendKind;
 use prism_remote::{DeviceList, Fingerprint, config_digest};
 
 use crate::config::TrainingConfig;
 use crate::error::{Result, TrainError};
+use crate::served::RESUME_HINT;
 use crate::step::{StepValues, TrainItem, Trainee};
 
 /// The autodiff devices of a run, the first one the main device: `list`'s local devices on
@@ -72,18 +73,25 @@ pub fn is_remote(device: &Device) -> bool {
 /// Runs the forward and backward passes of a step's shares on their devices.
 pub struct DataParallel {
     devices: Vec<Device>,
+    names: Vec<String>,
     multi: Option<MultiDevicesTrainStep<Trainee>>,
 }
 
 impl DataParallel {
-    /// Workers for `devices` (the first is the main device).
+    /// Workers for `devices` (the first is the main device), called `names` in errors (their
+    /// `--devices` entries).
     ///
     /// # Panics
-    /// If `devices` is empty.
-    pub fn new(devices: Vec<Device>) -> Self {
+    /// If `devices` is empty or `names` is not one per device.
+    pub fn new(devices: Vec<Device>, names: Vec<String>) -> Self {
         assert!(!devices.is_empty(), "at least one device");
+        assert_eq!(devices.len(), names.len(), "one name per device");
         let multi = (devices.len() > 1).then(|| MultiDevicesTrainStep::new(&devices));
-        Self { devices, multi }
+        Self {
+            devices,
+            names,
+            multi,
+        }
     }
 
     /// The devices, main device first.
@@ -129,9 +137,23 @@ impl DataParallel {
         let mut loaders: Vec<Box<dyn DataLoaderIterator<TrainItem>>> = (0..self.devices.len())
             .map(|_| Box::new(OneShare(shares.next())) as Box<dyn DataLoaderIterator<TrainItem>>)
             .collect();
-        let (outputs, _) = multi
-            .step(&mut loaders, model)
-            .map_err(|e| TrainError::Worker(e.to_string()))?;
+        let (outputs, _) = multi.step(&mut loaders, model).map_err(|e| match e {
+            MultiDeviceStepError::Workers(failures) => {
+                let failure = &failures[0];
+                let name = &self.names[failure.device_id];
+                let hint = if name.starts_with("remote:") {
+                    format!(" (its server stopped answering?); {RESUME_HINT}")
+                } else {
+                    String::new()
+                };
+                TrainError::Worker(format!(
+                    "device {} ({name}) failed: {}{hint}",
+                    failure.device_id,
+                    failure.message.lines().next().unwrap_or_default()
+                ))
+            }
+            other => TrainError::Worker(other.to_string()),
+        })?;
         let main = self.main_device();
         let mut outputs: Vec<_> = outputs.into_iter().map(|o| o.output).collect();
         outputs.sort_by_key(|o| o.item.share);

@@ -4,8 +4,8 @@
 use std::fs;
 use std::path::Path;
 
-use burn::module::Module;
-use burn::tensor::Device;
+use burn::module::{Module, ModuleVisitor, Param};
+use burn::tensor::{Device, Tensor};
 use prism_model::Prism;
 
 use crate::checkpoint::{
@@ -129,9 +129,23 @@ pub fn initial_model(
         model: if host == *device {
             model
         } else {
+            initialized(&model);
             model.fork(device)
         },
         step: 0,
         new_blocks: Vec::new(),
     })
+}
+
+/// Draws every lazily initialised parameter of `model` now, on its device: Burn initialises a
+/// parameter at its first use, on the device it is on then, with that device's random
+/// generator; a model moved to a served device first would be drawn by the server.
+fn initialized(model: &Prism) {
+    struct Draw;
+    impl ModuleVisitor for Draw {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            let _ = param.val();
+        }
+    }
+    model.visit(&mut Draw);
 }

@@ -23,6 +23,7 @@ use crate::config::TrainingConfig;
 use crate::data::{DataOrder, Prefetcher};
 use crate::error::{Result, TrainError};
 use crate::parallel::{fingerprint, training_devices};
+use crate::served::{device_names, guarded};
 use crate::start::{initial_model, prepare_run_folder};
 use crate::step::StepLoss;
 use crate::training_step::TrainingStep;
@@ -164,7 +165,6 @@ pub fn train(config: &TrainingConfig, task: &dyn Task, options: &RunOptions) -> 
     check_unfinished(options, first, config.train.steps)?;
     if let Some(before) = resumed.as_ref().map(|c| c.state.devices)
         && before != devices.len()
-        && options.progress
     {
         eprintln!(
             "resuming on {} devices (the run trained on {before} so far): each step's batch is              split into {} shares instead of {before}; the result equals the run's up to float              rounding, not bit for bit",
@@ -175,15 +175,26 @@ pub fn train(config: &TrainingConfig, task: &dyn Task, options: &RunOptions) -> 
     let data = TaskData {
         background: reader.meta().background,
     };
-    let mut step = TrainingStep::new(&config, start, resumed.as_ref(), task, &data, devices)?;
+    let names = device_names(&options.devices);
+    let mut step = TrainingStep::new(
+        &config,
+        start,
+        resumed.as_ref(),
+        task,
+        &data,
+        devices,
+        names,
+    )?;
     let mut cadence = Cadence::start(&config, options, task, &reader, &step, resumed.as_ref())?;
     let mut prefetcher = prefetch(train_set, &config, first);
     while let Some((index, samples)) = prefetcher.next_step() {
         let began = Instant::now();
         let samples = samples?;
         cadence.prepared(index, step.prepare(index))?;
-        let report = step.run(index, &samples)?;
-        cadence.after_step(&step, &report, began.elapsed().as_secs_f64())?;
+        guarded(&options.devices, || {
+            let report = step.run(index, &samples)?;
+            cadence.after_step(&step, &report, began.elapsed().as_secs_f64())
+        })?;
     }
     Ok(cadence.finish(&step))
 }

@@ -116,7 +116,8 @@ pub struct TrainingStep<'a> {
 impl<'a> TrainingStep<'a> {
     /// The step of `task` with `config`, from `start` (with the optimizer and scheduler state
     /// of `resumed`, when resuming), on `devices` (the first is the main device, where `start`'s
-    /// model is); each device's objective is built here.
+    /// model is; `names` are their `--devices` entries, for errors); each device's objective is
+    /// built here.
     ///
     /// # Errors
     /// Unreadable optimizer or scheduler state; an objective that cannot be built.
@@ -127,6 +128,7 @@ impl<'a> TrainingStep<'a> {
         task: &'a dyn Task,
         data: &TaskData,
         devices: Vec<Device>,
+        names: Vec<String>,
     ) -> Result<Self> {
         let train = &config.train;
         let total = train.steps;
@@ -162,7 +164,7 @@ impl<'a> TrainingStep<'a> {
             scheduler,
             backbone,
             heads,
-            parallel: DataParallel::new(devices),
+            parallel: DataParallel::new(devices, names),
             losses,
             task,
             grad_clip_norm: train.grad_clip_norm,

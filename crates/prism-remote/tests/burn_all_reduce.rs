@@ -1,0 +1,64 @@
+//! Where Burn 0.22's distributed operations stop, shown on the smallest program: two served
+//! devices on two `prism serve` servers, and `burn::tensor::distributed::all_reduce` over them.
+//!
+//! Burn's remote client refuses a collective whose devices live on different servers
+//! (burn-remote 0.22.1, `src/client/runner.rs`, line 182: "cross-peer all_reduce is not
+//! supported yet"), and the CPU backends have no collective at all (burn-flex 0.22.1,
+//! `src/ops/transaction.rs` line 11 takes the default of burn-backend 0.22.1,
+//! `src/backend/distributed/ops.rs` line 121: `unimplemented!()`). This is why prism's
+//! trainer sums the gradients with Burn's server-to-server transfers instead (see the README,
+//! "Training on several machines"). When a Burn release lifts the limit, this test fails:
+//! then the trainer should switch to `all_reduce`.
+
+use std::panic::{AssertUnwindSafe, catch_unwind};
+use std::sync::mpsc;
+use std::time::Duration;
+
+use burn::tensor::distributed::{ReduceOperation, all_reduce};
+use burn::tensor::{Device, Tensor};
+use prism_remote::{DeviceList, Fingerprint, ServeOptions, TransportKind, connect, serve};
+
+fn served_device() -> Device {
+    let (send, receive) = mpsc::channel();
+    let options = ServeOptions {
+        listen: "127.0.0.1:0".parse().unwrap(),
+        transport: TransportKind::WebSocket,
+        token: "t".into(),
+        devices: vec![Device::flex()],
+        fingerprint: Fingerprint::this_build(None),
+        identity: None,
+        public_relays: false,
+    };
+    std::thread::spawn(move || serve(options, move |entry| send.send(entry.into()).unwrap()));
+    let entry: String = receive.recv_timeout(Duration::from_secs(30)).unwrap();
+    let list: DeviceList = entry.parse().unwrap();
+    connect(
+        &list,
+        &Device::flex(),
+        Some("t"),
+        &Fingerprint::this_build(None),
+    )
+    .unwrap()
+    .remove(0)
+}
+
+#[test]
+fn burn_cannot_all_reduce_across_two_servers() {
+    let (a, b) = (served_device(), served_device());
+    let x = Tensor::<1>::from_floats([1.0, 2.0], &a);
+    let refused = catch_unwind(AssertUnwindSafe(|| {
+        all_reduce(x, ReduceOperation::Sum, vec![a.clone(), b.clone()])
+    }));
+    let message = match refused {
+        Ok(_) => panic!("Burn all-reduced across servers: switch the trainer to all_reduce"),
+        Err(payload) => payload
+            .downcast_ref::<String>()
+            .cloned()
+            .or_else(|| payload.downcast_ref::<&str>().map(|s| s.to_string()))
+            .unwrap_or_default(),
+    };
+    assert!(
+        message.contains("cross-peer all_reduce is not supported yet"),
+        "{message}"
+    );
+}
