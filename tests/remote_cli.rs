@@ -311,3 +311,30 @@ fn refusals_are_one_clear_line() {
     }
     assert!(!run.join("checkpoints").exists() || list_checkpoints(&run).unwrap().is_empty());
 }
+
+#[test]
+fn serve_stops_cleanly_on_sigint_and_sigterm() {
+    let dir = scratch("signals");
+    let (_, token) = setup(&dir, &tiny_config(1));
+    for signal in ["INT", "TERM"] {
+        let mut server = Server::start("websocket", &token, &[]);
+        let pid = server.child.id().to_string();
+        success({
+            let mut kill = Command::new("kill");
+            kill.args([&format!("-{signal}"), &pid]);
+            kill
+        });
+        let began = Instant::now();
+        let status = loop {
+            if let Some(status) = server.child.try_wait().unwrap() {
+                break status;
+            }
+            assert!(
+                began.elapsed() < Duration::from_secs(20),
+                "SIG{signal} ignored"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        assert!(status.success(), "SIG{signal}: {status}");
+    }
+}

@@ -8,7 +8,7 @@ use std::str::FromStr;
 
 use burn::server::{
     AuthorizationRequest, IrohIdentity, IrohRelays, IrohTransport, PeerAuthorizer, RemoteServer,
-    TokenAuthorizer, Transport, WebSocketTransport,
+    ServerLogging, TokenAuthorizer, Transport, WebSocketTransport,
 };
 use burn::tensor::Device;
 
@@ -90,8 +90,10 @@ pub enum ServeError {
     Burn(String),
 }
 
-/// Serves `options.devices` until SIGINT or SIGTERM. `announce` receives, once the server
-/// listens, the `--devices` entry a trainer uses to reach device 0.
+/// Serves `options.devices` until SIGINT or SIGTERM (Ctrl+C elsewhere). `announce` receives,
+/// once the signal handlers are in place, the `--devices` entry a trainer uses to reach
+/// device 0 (a trainer dialling before the server has bound is answered once it has: Burn's
+/// client retries).
 ///
 /// # Errors
 /// The address cannot be bound, or Burn's server fails.
@@ -149,10 +151,44 @@ pub fn serve(options: ServeOptions, announce: impl FnOnce(&str)) -> Result<(), S
             (Transport::from(transport), entry)
         }
     };
-    announce(&entry);
-    server
-        .serve(transport)
-        .map_err(|e| ServeError::Burn(e.to_string()))
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| ServeError::Burn(format!("cannot start the runtime: {e}")))?;
+    ServerLogging::install();
+    runtime.block_on(async move {
+        // The handlers are in place before the address is announced: a signal sent as soon as
+        // the line is read stops the server cleanly.
+        let stop = stop_signal().map_err(|e| ServeError::Burn(format!("signal handlers: {e}")))?;
+        let serving = server.serve_async(transport);
+        announce(&entry);
+        tokio::select! {
+            served = serving => served.map_err(|e| ServeError::Burn(e.to_string())),
+            () = stop => Ok(()),
+        }
+    })
+}
+
+/// Resolves at the first SIGINT or SIGTERM; the handlers are installed when this returns.
+#[cfg(unix)]
+fn stop_signal() -> std::io::Result<impl std::future::Future<Output = ()>> {
+    use tokio::signal::unix::{SignalKind, signal};
+    let mut interrupt = signal(SignalKind::interrupt())?;
+    let mut terminate = signal(SignalKind::terminate())?;
+    Ok(async move {
+        tokio::select! {
+            _ = interrupt.recv() => {}
+            _ = terminate.recv() => {}
+        }
+    })
+}
+
+/// Resolves at the first Ctrl+C.
+#[cfg(not(unix))]
+fn stop_signal() -> std::io::Result<impl std::future::Future<Output = ()>> {
+    Ok(async {
+        let _ = tokio::signal::ctrl_c().await;
+    })
 }
 
 /// The port to bind Iroh's UDP socket on: `listen`'s, or a free one for port 0.
