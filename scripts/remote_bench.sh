@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Training over served devices on loopback (BENCHMARKS.md, "Training on several machines"):
-# for a config, the step time and the bytes sent per step with 1 local device, and with 2 and
-# 4 devices served by `prism serve` (WebSocket, flex) on this machine. The global batch is 4
+# for a config, the step time and the bytes sent per step with 1 local device, and with 1, 2
+# and 4 devices served by `prism serve` (WebSocket, flex) on this machine. The global batch is 4
 # samples for every variant; no validation, no checkpoint inside the timed runs.
 #
 #   scripts/remote_bench.sh [CONFIG] [STEPS]      defaults: configs/tiny.toml, 12 steps
@@ -54,5 +54,6 @@ for i in 1 2 3 4; do
   until [ -s "$WORK/serve-$i.out" ]; do sleep 0.1; done
   ENTRIES+=("$(head -1 "$WORK/serve-$i.out")")
 done
+row "1 served" "${ENTRIES[0]}"
 row "2 served" "${ENTRIES[0]},${ENTRIES[1]}"
 row "4 served" "$(IFS=,; echo "${ENTRIES[*]}")"

@@ -153,6 +153,17 @@ impl FromStr for DeviceList {
         {
             return Err(error(&spec.to_string(), "the device is listed twice"));
         }
+        let websocket = specs
+            .iter()
+            .any(|s| matches!(s, DeviceSpec::WebSocket { .. }));
+        let iroh = specs.iter().any(|s| matches!(s, DeviceSpec::Iroh { .. }));
+        if websocket && iroh {
+            return Err(error(
+                text,
+                "one run uses one transport: Burn 0.22 cannot move tensors between an Iroh and \
+                 a WebSocket server",
+            ));
+        }
         Ok(Self(specs))
     }
 }
@@ -276,6 +287,7 @@ mod tests {
 
     #[test]
     fn malformed_lists_name_the_entry_and_the_fault() {
+        let mixed = format!("remote:ws://127.0.0.1:7000,remote:iroh:{}", iroh_id());
         let cases = [
             ("0", "at least one device"),
             ("gpu:0", "expected a device count"),
@@ -288,6 +300,7 @@ mod tests {
                 "listed twice",
             ),
             ("remote:ws://no-such-host.invalid:7000", "cannot resolve"),
+            (mixed.as_str(), "one transport"),
         ];
         for (text, expected) in cases {
             let err = text.parse::<DeviceList>().unwrap_err().to_string();

@@ -8,6 +8,11 @@
 //! [`GradientsAccumulator`]; since every share's loss is weighted by its fraction of the batch
 //! (see [`TrainItem::weight`]) the sum is the gradient of the whole batch's mean loss, and the
 //! optimizer steps once on the main device (burn-train's `MultiDeviceOptim::OptimMainDevice`).
+//!
+//! The devices may be served by other machines (`prism serve`, Burn's remote backend): the
+//! same step then forks the model to each served device and brings the gradients to the main
+//! one with Burn's server-to-server transfers. Burn 0.22 has no all-reduce across servers (see
+//! the README, "Training on several machines"), which is why the gradients are gathered.
 
 use burn::backend::DispatchDevice;
 use burn::data::dataloader::{DataLoaderIterator, Progress};
