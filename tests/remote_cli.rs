@@ -9,28 +9,17 @@ mod common;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::sync::OnceLock;
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use prism_core::BackendKind;
-use prism_synth::ensure_synthetic_dataset;
 use prism_train::{Checkpoint, TrainingConfig, configs_dir, list_checkpoints, parameter_values};
 
-use common::{failure, output, prism, prism_with_cache, s, scratch, stderr, success};
+use common::{copy_dir, failure, output, prism, prism_with_cache, s, scratch, stderr, success};
 
 /// The cache folder of this test process, holding the tiny synthetic dataset.
 fn cache() -> PathBuf {
-    static CACHE: OnceLock<PathBuf> = OnceLock::new();
-    CACHE
-        .get_or_init(|| {
-            let dir = scratch("cache");
-            // SAFETY: set once, before any child process is spawned or the variable is read.
-            unsafe { std::env::set_var(prism_synth::CACHE_ENV, &dir) };
-            ensure_synthetic_dataset(&tiny_config(2).data, false).unwrap();
-            dir
-        })
-        .clone()
+    common::cache(&tiny_config(2).data)
 }
 
 /// configs/tiny.toml at 32 px without LPIPS, `steps` steps of 2 samples, a checkpoint at
@@ -244,19 +233,6 @@ fn a_killed_server_stops_the_trainer_and_the_run_resumes() {
     ));
     assert_eq!(weights(&run), weights(&straight));
     drop((first, second));
-}
-
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for entry in std::fs::read_dir(from).unwrap() {
-        let entry = entry.unwrap();
-        let target = to.join(entry.file_name());
-        if entry.file_type().unwrap().is_dir() {
-            copy_dir(&entry.path(), &target);
-        } else {
-            std::fs::copy(entry.path(), target).unwrap();
-        }
-    }
 }
 
 #[test]

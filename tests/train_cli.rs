@@ -5,30 +5,18 @@ mod common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use prism_core::BackendKind;
-use prism_synth::ensure_synthetic_dataset;
 use prism_train::{
     Checkpoint, TrainingConfig, configs_dir, list_checkpoints, parameter_values, read_metrics,
 };
 
 use common::{failure, output, prism_with_cache, scratch, stderr, stdout, success};
 
-/// The cache folder of this test process, holding the tiny synthetic dataset (synthesised once,
-/// before any child process needs it).
+/// The cache folder of this test process, holding the tiny synthetic dataset.
 fn cache() -> PathBuf {
-    static CACHE: OnceLock<PathBuf> = OnceLock::new();
-    CACHE
-        .get_or_init(|| {
-            let dir = scratch("cache");
-            // SAFETY: set once, before any child process is spawned or the variable is read.
-            unsafe { std::env::set_var(prism_synth::CACHE_ENV, &dir) };
-            ensure_synthetic_dataset(&tiny_config(40, 5).data, false).unwrap();
-            dir
-        })
-        .clone()
+    common::cache(&tiny_config(40, 5).data)
 }
 
 /// configs/tiny.toml at 32 px without LPIPS in the loss (LPIPS backward is slow on ndarray;

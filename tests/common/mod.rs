@@ -6,11 +6,13 @@
 //! - outcomes: [`output`] (whatever the exit status), [`success`] (asserts exit 0) and
 //!   [`failure`] (asserts the one-line `error: ` the binary prints on bad input); [`stdout`],
 //!   [`stderr`] and [`text`] of an output;
-//! - files: [`scratch`] (a fresh folder per test), [`s`] (a path as an argument).
+//! - files: [`scratch`] (a fresh folder per test), [`s`] (a path as an argument), [`cache`]
+//!   (this process's dataset cache, holding one synthetic dataset), [`copy_dir`].
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
+use std::sync::OnceLock;
 
 use image::RgbImage;
 
@@ -100,6 +102,36 @@ pub fn scratch(test: &str) -> PathBuf {
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     dir
+}
+
+/// The cache folder of this test process (`$PRISM_CACHE_DIR` for the children it spawns),
+/// holding the synthetic dataset `data` describes, synthesised on the first call (before any
+/// child process needs it); later calls return the same folder.
+pub fn cache(data: &prism_data::SynthOptions) -> PathBuf {
+    static CACHE: OnceLock<PathBuf> = OnceLock::new();
+    CACHE
+        .get_or_init(|| {
+            let dir = scratch("cache");
+            // SAFETY: set once, before any child process is spawned or the variable is read.
+            unsafe { std::env::set_var(prism_synth::CACHE_ENV, &dir) };
+            prism_synth::ensure_synthetic_dataset(data, false).unwrap();
+            dir
+        })
+        .clone()
+}
+
+/// Copies the folder `from` to `to`, recursively.
+pub fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap() {
+        let entry = entry.unwrap();
+        let target = to.join(entry.file_name());
+        if entry.file_type().unwrap().is_dir() {
+            copy_dir(&entry.path(), &target);
+        } else {
+            std::fs::copy(entry.path(), target).unwrap();
+        }
+    }
 }
 
 /// `p` as a command-line argument (test paths are UTF-8).

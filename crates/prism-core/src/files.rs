@@ -3,9 +3,12 @@
 //! [`write_atomic`] stages the new contents beside the target (same folder, so the final rename
 //! stays on one file system), syncs them, and renames them over the target: a reader, or a run
 //! killed at any moment, finds the old file or the new one, never a partial one. On Linux the
-//! staged file has no name until it is complete (`O_TMPFILE`), so a killed writer leaves nothing
-//! behind; elsewhere (or where the file system lacks `O_TMPFILE`) it is a hidden
-//! `.NAME.tmp-PID-N` sibling, removed on every error.
+//! staged file has no name until it is complete (`O_TMPFILE`); elsewhere (or where the file
+//! system lacks `O_TMPFILE`) it is a hidden `.NAME.tmp-PID-N` sibling, removed on every error.
+//! Replacing a file needs that name for the moment between naming the complete copy and the
+//! rename (Linux cannot link a file over another), so a writer killed (SIGKILL) just then
+//! leaves a complete hidden copy behind; the next write of the same file removes the copies of
+//! writers that are no longer running.
 
 use std::fs::{self, File};
 use std::io::{self, BufWriter, Write};
@@ -125,7 +128,44 @@ impl Staged {
             return Err(e);
         }
         sync_folder(path);
+        remove_abandoned_copies(path);
         Ok(())
+    }
+}
+
+/// Removes the staged copies of `path` (`.NAME.tmp-PID-N`) whose writer is no longer running:
+/// what a writer killed between naming its copy and renaming it leaves.
+fn remove_abandoned_copies(path: &Path) {
+    let Some(name) = path.file_name().and_then(|n| n.to_str()) else {
+        return;
+    };
+    let prefix = format!(".{name}.tmp-");
+    let Ok(entries) = fs::read_dir(folder(path)) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let file = entry.file_name();
+        let pid = file
+            .to_str()
+            .and_then(|f| f.strip_prefix(&prefix))
+            .and_then(|rest| rest.split('-').next())
+            .and_then(|pid| pid.parse::<u32>().ok());
+        if let Some(pid) = pid
+            && pid != std::process::id()
+            && !running(pid)
+        {
+            let _ = fs::remove_file(entry.path());
+        }
+    }
+}
+
+/// Whether the process `pid` runs (on Linux, from `/proc`; elsewhere assumed, so that nothing
+/// is removed where it cannot be told).
+fn running(pid: u32) -> bool {
+    if cfg!(target_os = "linux") && Path::new("/proc/self").is_dir() {
+        Path::new(&format!("/proc/{pid}")).exists()
+    } else {
+        true
     }
 }
 
