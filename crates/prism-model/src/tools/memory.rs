@@ -197,7 +197,10 @@ mod tests {
         std::hint::black_box(&buffer);
         let peak = probe.peak_bytes().expect("rss");
         drop(buffer);
-        assert!(peak >= (size as u64) * 9 / 10, "peak {peak}");
+        // Three quarters: the kernel's resident-set counters are batched per CPU and were
+        // seen 10 % short under load (a probe that missed the buffer reports the process's
+        // few megabytes).
+        assert!(peak >= (size as u64) * 3 / 4, "peak {peak}");
         assert!(peak < 4 * size as u64, "peak {peak}");
     }
 }
