@@ -52,6 +52,14 @@ impl BackendKind {
     }
 }
 
+/// Whether `device` is served by another process (`prism serve`, Burn's remote backend).
+pub fn is_served(device: &Device) -> bool {
+    matches!(
+        device.clone().inner().as_dispatch(),
+        burn::backend::DispatchDevice::Remote(_)
+    )
+}
+
 /// A backend that cannot be used.
 #[derive(Debug, thiserror::Error)]
 pub enum BackendError {

@@ -61,8 +61,7 @@ impl Fingerprint {
     fn encode(&self) -> Vec<f32> {
         let json = serde_json::to_vec(self).expect("a fingerprint serialises");
         let mut values: Vec<f32> = json.iter().map(|&b| f32::from(b)).collect();
-        values.resize(ANSWER_LEN.max(values.len()), 0.0);
-        values.truncate(ANSWER_LEN);
+        values.resize(ANSWER_LEN, 0.0);
         values
     }
 

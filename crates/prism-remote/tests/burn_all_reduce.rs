@@ -5,7 +5,7 @@
 //! (burn-remote 0.22.1, `src/client/runner.rs`, line 182: "cross-peer all_reduce is not
 //! supported yet"), and the CPU backends have no collective at all (burn-flex 0.22.1,
 //! `src/ops/transaction.rs` line 11 takes the default of burn-backend 0.22.1,
-//! `src/backend/distributed/ops.rs` line 121: `unimplemented!()`). This is why prism's
+//! `src/backend/distributed/ops.rs` line 121, a default that panics). This is why prism's
 //! trainer sums the gradients with Burn's server-to-server transfers instead (see the README,
 //! "Training on several machines"). When a Burn release lifts the limit, this test fails:
 //! then the trainer should switch to `all_reduce`.

@@ -6,16 +6,12 @@
 //! its outputs go back. Autodiff follows the moves (Burn's differentiable cross-backend
 //! transfer), so the operation's gradient reaches the served tensors.
 
-use burn::backend::DispatchDevice;
 use burn::tensor::Device;
+use prism_core::backend::is_served;
 
 /// The device a geometry operation on `device` runs on instead: `None` where prism's backend
 /// extensions cover `device`; this machine's flex device (with `device`'s autodiff) for a
 /// served device.
 pub(crate) fn host_for(device: &Device) -> Option<Device> {
-    matches!(
-        device.clone().inner().as_dispatch(),
-        DispatchDevice::Remote(_)
-    )
-    .then(|| Device::flex().with_autodiff_context_from(device))
+    is_served(device).then(|| Device::flex().with_autodiff_context_from(device))
 }

@@ -69,7 +69,7 @@ pub use infer::{
     sweep_views,
 };
 pub use log::{METRICS_FILE, MetricsLog, read_metrics};
-pub use parallel::{DataParallel, fingerprint, is_remote, training_devices};
+pub use parallel::{DataParallel, fingerprint, training_devices};
 pub use plot::{PLOT_FILE, PLOT_SIZE, TrainingCurves, plot_metrics, plot_run};
 pub use predict::{Pairs, forward_pairs, inference_model, synthesise};
 pub use quickstart::{

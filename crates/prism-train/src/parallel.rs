@@ -14,7 +14,6 @@
 //! one with Burn's server-to-server transfers. Burn 0.22 has no all-reduce across servers (see
 //! the README, "Training on several machines"), which is why the gradients are gathered.
 
-use burn::backend::DispatchDevice;
 use burn::data::dataloader::{DataLoaderIterator, Progress};
 use burn::data::dataset::DatasetError;
 use burn::optim::{GradientsAccumulator, GradientsParams};
@@ -65,14 +64,6 @@ pub fn training_devices(
 pub fn fingerprint(config: &TrainingConfig) -> Fingerprint {
     let model = serde_json::to_string(&config.model).expect("a model config serialises");
     Fingerprint::this_build(Some(config_digest(&model)))
-}
-
-/// Whether `device` is served by another process (Burn's remote backend).
-pub fn is_remote(device: &Device) -> bool {
-    matches!(
-        device.clone().inner().as_dispatch(),
-        DispatchDevice::Remote(_)
-    )
 }
 
 /// Runs the forward and backward passes of a step's shares on their devices.

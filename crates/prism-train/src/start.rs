@@ -6,6 +6,7 @@ use std::path::Path;
 
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::tensor::{Device, Tensor};
+use prism_core::backend::is_served;
 use prism_model::Prism;
 
 use crate::checkpoint::{
@@ -13,7 +14,6 @@ use crate::checkpoint::{
 };
 use crate::config::TrainingConfig;
 use crate::error::{Result, TrainError};
-use crate::parallel::is_remote;
 use crate::trainer::{RunOptions, Task};
 
 /// The run folder's copy of the config it was started with.
@@ -118,7 +118,7 @@ pub fn initial_model(
     }
     // A served main device is initialised on this machine and sent: the same weights as a
     // local run, whatever the server's random generator.
-    let host = if is_remote(device) {
+    let host = if is_served(device) {
         options.backend.autodiff_device()?
     } else {
         device.clone()
