@@ -1,8 +1,9 @@
 //! Training on devices served by `prism serve`, end to end through the built binary on
-//! loopback: two servers (WebSocket, then Iroh) train like one local device with the same
-//! global batch; a killed server stops the trainer with its name and the run resumes; a
-//! server of another model config, a wrong token and malformed or unreachable devices are
-//! refused with one clear line.
+//! loopback: two servers (WebSocket, then Iroh; one loading its shares from its own copy of
+//! the dataset) train like one local device with the same global batch; a killed server stops
+//! the trainer with its name and the run resumes; a server of another model config or
+//! dataset, a wrong token and malformed or unreachable devices are refused with one clear
+//! line, and a server that cannot read its copy of the dataset is named with the file.
 
 mod common;
 
@@ -20,6 +21,16 @@ use common::{copy_dir, failure, output, prism, prism_with_cache, s, scratch, std
 /// The cache folder of this test process, holding the tiny synthetic dataset.
 fn cache() -> PathBuf {
     common::cache(&tiny_config(2).data)
+}
+
+/// A copy of the tiny synthetic dataset in `dir` (a server's own copy), changed by `edit`.
+fn dataset_copy(dir: &Path, edit: impl FnOnce(&Path)) -> PathBuf {
+    let config = tiny_config(1);
+    cache();
+    let copy = dir.join("server-data");
+    copy_dir(&prism_synth::synthetic_dataset_dir(&config.data), &copy);
+    edit(&copy);
+    copy
 }
 
 /// configs/tiny.toml at 32 px without LPIPS, `steps` steps of 2 samples, a checkpoint at
@@ -132,18 +143,28 @@ fn two_served_devices_train_like_one_local_device() {
     let local = dir.join("local");
     success(train(&config, &local, &[]));
     let expected = weights(&local);
+    let data = dataset_copy(&dir, |_| {});
     for transport in ["websocket", "iroh"] {
+        // The first loads its shares from its copy of the dataset, the second is sent its own.
         let servers = [
-            Server::start(transport, &token, &[]),
+            Server::start(transport, &token, &["--data", s(&data)]),
             Server::start(transport, &token, &["--config", s(&config)]),
         ];
         let devices = format!("{},{}", servers[0].entry, servers[1].entry);
         let out = dir.join(transport);
-        success(train(
+        let run = success(train(
             &config,
             &out,
             &["--devices", &devices, "--token-file", s(&token)],
         ));
+        let notes = stderr(&run);
+        let sent = |server: &Server| {
+            notes.contains(&format!("{}: its server has no --data", server.entry))
+        };
+        assert!(
+            !sent(&servers[0]) && sent(&servers[1]),
+            "{transport}: {notes}"
+        );
         assert_eq!(Checkpoint::read(&out).unwrap().state.devices, 2);
         let diff = max_difference(&weights(&out), &expected);
         assert!(diff < 1e-5, "{transport}: max difference {diff}");
@@ -265,6 +286,21 @@ fn refusals_are_one_clear_line() {
         &["--devices", &server.entry, "--token-file", s(&token)],
     ));
     assert!(err.contains("another model config"), "{err}");
+    // A server loading another dataset.
+    let other = dataset_copy(&dir, |copy| {
+        let path = copy.join("dataset.json");
+        let mut meta: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        meta["generator"]["edited"] = true.into();
+        std::fs::write(&path, meta.to_string()).unwrap();
+    });
+    let elsewhere = Server::start("websocket", &token, &["--data", s(&other)]);
+    let err = failure(train(
+        &config,
+        &run,
+        &["--devices", &elsewhere.entry, "--token-file", s(&token)],
+    ));
+    assert!(err.contains("loads another dataset"), "{err}");
     // No token at all.
     let mut no_token = train(&config, &run, &["--devices", &server.entry]);
     no_token.env_remove("PRISM_TOKEN");
@@ -286,6 +322,33 @@ fn refusals_are_one_clear_line() {
         assert!(began.elapsed() < Duration::from_secs(60), "{devices}");
     }
     assert!(!run.join("checkpoints").exists() || list_checkpoints(&run).unwrap().is_empty());
+}
+
+#[test]
+fn a_server_that_cannot_read_its_share_is_named_with_the_file() {
+    let dir = scratch("unreadable");
+    let (config, token) = setup(&dir, &tiny_config(1));
+    let data = dataset_copy(&dir, |copy| {
+        for subject in std::fs::read_dir(copy).unwrap() {
+            let rgb = subject.unwrap().path().join("rgb");
+            if rgb.is_dir() {
+                std::fs::remove_dir_all(rgb).unwrap();
+            }
+        }
+    });
+    let server = Server::start("websocket", &token, &["--data", s(&data)]);
+    let devices = format!("local,{}", server.entry);
+    let err = failure(train(
+        &config,
+        &dir.join("run"),
+        &["--devices", &devices, "--token-file", s(&token)],
+    ));
+    assert!(
+        err.contains(&format!("device 1 ({})", server.entry))
+            && err.contains("cannot load its share")
+            && err.contains("server-data"),
+        "{err}"
+    );
 }
 
 #[test]

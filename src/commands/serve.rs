@@ -5,7 +5,8 @@ use std::path::PathBuf;
 
 use clap::Args;
 use prism_core::BackendKind;
-use prism_remote::{Fingerprint, ServeOptions, TransportKind, read_token, serve};
+use prism_data::DatasetReader;
+use prism_remote::{Fingerprint, ServeOptions, TransportKind, dataset_digest, read_token, serve};
 use prism_train::{TrainingConfig, fingerprint};
 
 /// Arguments of `prism serve`.
@@ -27,6 +28,10 @@ pub struct ServeArgs {
     /// Serve only trainers of this config's model (refused before any step otherwise).
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
+    /// A copy of the run's dataset (a folder of `prism dataset`): the server loads its device's
+    /// share of every training batch from it, instead of receiving it from the trainer.
+    #[arg(long, value_name = "DIR")]
+    data: Option<PathBuf>,
     /// Iroh: the server's secret key file (created when missing), so that its node id stays
     /// the same across restarts [default: a new id at every start].
     #[arg(long, value_name = "FILE")]
@@ -44,12 +49,22 @@ impl ServeArgs {
             Some(path) => fingerprint(&TrainingConfig::load(path)?),
             None => Fingerprint::this_build(None),
         };
+        let data = self.data.as_deref().map(DatasetReader::open).transpose()?;
+        let fingerprint = match &data {
+            Some(reader) => fingerprint.with_data(dataset_digest(reader)),
+            None => fingerprint,
+        };
+        let loads = match &self.data {
+            Some(dir) => format!(", loading its shares from {}", dir.display()),
+            None => String::new(),
+        };
         let options = ServeOptions {
             listen: self.listen,
             transport: self.transport,
             token,
             devices: vec![self.backend.device()?],
             fingerprint,
+            data,
             identity: self.identity,
             public_relays: self.public_relays,
         };
@@ -58,7 +73,7 @@ impl ServeArgs {
             // The one line to paste on the trainer's side; stdout, flushed, for scripts.
             println!("{entry}");
             eprintln!(
-                "prism serve: serving the {backend} device; train with --devices {entry} \
+                "prism serve: serving the {backend} device{loads}; train with --devices {entry} \
                  --token-file FILE (Ctrl+C stops)"
             );
         })?;

@@ -6,7 +6,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 use image::Rgb32FImage;
 
 use super::io::PointMap;
-use super::samples::{Sample, View};
+use super::samples::{Sample, SampleMeta, ViewMeta};
 use prism_body::BodyParams;
 use prism_body::joints::{NUM_BETAS, NUM_EXPRESSION, NUM_JOINTS};
 use prism_core::camera::Camera;
@@ -104,6 +104,68 @@ pub struct PairInfo {
     pub pitch_deg: f32,
 }
 
+/// Channels of the pixel planes of a batch, in the order of [`BatchPixels::into_data`]:
+/// source image, source rays, source mask, source points, target rays, target image, target
+/// mask.
+pub const PIXEL_PLANES: [usize; 7] = [3, 6, 1, 3, 6, 3, 1];
+
+/// The pixel planes of a batch on the host, one row per (source, target) pair: what is sent
+/// to a device (or made on a device that loads its own share, see [`PrismBatch::assemble`]).
+#[derive(Clone, Debug, Default)]
+pub struct BatchPixels {
+    pairs: usize,
+    size: (usize, usize),
+    planes: [Vec<f32>; 7],
+}
+
+impl BatchPixels {
+    /// The planes of `samples`.
+    ///
+    /// # Panics
+    /// If `samples` is empty or the samples differ in resolution (one dataset gives one size).
+    pub fn of(samples: &[Sample]) -> Self {
+        let first = samples.first().expect("a batch needs at least one sample");
+        let size = (
+            first.source.rgb.width() as usize,
+            first.source.rgb.height() as usize,
+        );
+        let mut planes: [Vec<f32>; 7] = Default::default();
+        let mut pairs = 0;
+        for sample in samples {
+            let source = [
+                rgb_chw(&sample.source.rgb),
+                plucker_map(&sample.source.camera),
+                sample.source.mask.as_raw().clone(),
+                points_chw(&sample.points),
+            ];
+            for target in &sample.targets {
+                for (plane, values) in planes.iter_mut().zip(&source) {
+                    plane.extend_from_slice(values);
+                }
+                planes[4].extend(plucker_map(&target.camera));
+                planes[5].extend(rgb_chw(&target.rgb));
+                planes[6].extend_from_slice(target.mask.as_raw());
+                pairs += 1;
+            }
+        }
+        Self {
+            pairs,
+            size,
+            planes,
+        }
+    }
+
+    /// The planes as `[P, C, H, W]` tensor data, in the order of [`PIXEL_PLANES`].
+    pub fn into_data(self) -> [TensorData; 7] {
+        let (w, h) = self.size;
+        let mut channels = PIXEL_PLANES.iter();
+        self.planes.map(|plane| {
+            let c = *channels.next().expect("one channel count per plane");
+            TensorData::new(plane, [self.pairs, c, h, w])
+        })
+    }
+}
+
 /// Builds [`PrismBatch`]es from [`Sample`]s.
 #[derive(Clone, Debug, Default)]
 pub struct PrismBatcher;
@@ -114,47 +176,47 @@ impl PrismBatcher {
     /// # Panics
     /// If `samples` is empty or the samples differ in resolution (one dataset gives one size).
     pub fn batch_samples(&self, samples: &[Sample], device: &Device) -> PrismBatch {
-        let first = samples.first().expect("a batch needs at least one sample");
-        let (w, h) = (
-            first.source.rgb.width() as usize,
-            first.source.rgb.height() as usize,
-        );
-        let mut b = Buffers::default();
+        let metas: Vec<SampleMeta> = samples.iter().map(Sample::meta).collect();
+        let planes = BatchPixels::of(samples)
+            .into_data()
+            .map(|data| Tensor::from_data(data, device));
+        PrismBatch::assemble(&metas, planes)
+    }
+}
+
+impl PrismBatch {
+    /// The batch of the samples described by `metas` from their pixel planes (`[P, C, H, W]`
+    /// in the order of [`PIXEL_PLANES`], wherever they were made).
+    pub fn assemble(metas: &[SampleMeta], planes: [Tensor<4>; 7]) -> Self {
         let mut pairs = Vec::new();
         let mut bodies = Vec::new();
         let mut source_cameras = Vec::new();
         let mut target_cameras = Vec::new();
-        for sample in samples {
-            let source_rgb = rgb_chw(&sample.source.rgb);
-            let source_rays = plucker_map(&sample.source.camera);
-            let source_mask = sample.source.mask.as_raw().clone();
-            let source_points = points_chw(&sample.points);
-            for target in &sample.targets {
-                b.source_image.extend_from_slice(&source_rgb);
-                b.source_rays.extend_from_slice(&source_rays);
-                b.source_mask.extend_from_slice(&source_mask);
-                b.source_points.extend_from_slice(&source_points);
-                b.target_rays.extend(plucker_map(&target.camera));
-                b.target_image.extend(rgb_chw(&target.rgb));
-                b.target_mask.extend_from_slice(target.mask.as_raw());
-                source_cameras.push(sample.source.camera);
+        for meta in metas {
+            for target in &meta.targets {
+                source_cameras.push(meta.source_camera);
                 target_cameras.push(target.camera);
-                pairs.push(pair_info(&sample.subject, target));
-                bodies.push(sample.body.clone());
+                pairs.push(pair_info(&meta.subject, target));
+                bodies.push(meta.body.clone());
             }
         }
-        let p = pairs.len();
-        let t = |data: Vec<f32>, c: usize| -> Tensor<4> {
-            Tensor::from_data(TensorData::new(data, [p, c, h, w]), device)
-        };
+        let [
+            source_image,
+            source_rays,
+            source_mask,
+            source_points,
+            target_rays,
+            target_image,
+            target_mask,
+        ] = planes;
         PrismBatch {
-            source_image: t(b.source_image, 3),
-            source_rays: t(b.source_rays, 6),
-            source_mask: t(b.source_mask, 1),
-            source_points: t(b.source_points, 3),
-            target_rays: t(b.target_rays, 6),
-            target_image: t(b.target_image, 3),
-            target_mask: t(b.target_mask, 1),
+            source_image,
+            source_rays,
+            source_mask,
+            source_points,
+            target_rays,
+            target_image,
+            target_mask,
             source_cameras,
             target_cameras,
             pairs,
@@ -169,18 +231,7 @@ impl Batcher<Sample, PrismBatch> for PrismBatcher {
     }
 }
 
-#[derive(Default)]
-struct Buffers {
-    source_image: Vec<f32>,
-    source_rays: Vec<f32>,
-    source_mask: Vec<f32>,
-    source_points: Vec<f32>,
-    target_rays: Vec<f32>,
-    target_image: Vec<f32>,
-    target_mask: Vec<f32>,
-}
-
-fn pair_info(subject: &str, target: &View) -> PairInfo {
+fn pair_info(subject: &str, target: &ViewMeta) -> PairInfo {
     PairInfo {
         subject: subject.to_string(),
         target_view: target.index,

@@ -13,12 +13,12 @@ pub mod schema;
 pub mod synth_options;
 pub mod writer;
 
-pub use batch::{PairInfo, PrismBatch, PrismBatcher};
+pub use batch::{BatchPixels, PIXEL_PLANES, PairInfo, PrismBatch, PrismBatcher};
 pub use check::{CheckReport, Problem, check_dataset};
 pub use error::DataError;
 pub use io::{Mask, PointMap};
 pub use reader::DatasetReader;
-pub use samples::{Sample, SampleDataset, TargetSelection, View};
+pub use samples::{Sample, SampleDataset, SampleMeta, TargetSelection, View, ViewMeta};
 pub use schema::{CameraRecord, DatasetMeta, Split, SplitKind, SubjectRecord};
 pub use synth_options::SynthOptions;
 pub use writer::{DatasetWriter, SubjectWriter};

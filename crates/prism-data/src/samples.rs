@@ -67,6 +67,58 @@ pub struct Sample {
     pub body: Option<BodyParams>,
 }
 
+/// What a batch needs of a sample besides its pixels: the subject, the cameras of its views
+/// and its body-model fit. A trainer whose device loads its own share of a batch (a `prism
+/// serve --data` server) reads only this, without the images.
+#[derive(Clone, Debug)]
+pub struct SampleMeta {
+    /// Subject folder name.
+    pub subject: String,
+    /// The source view's camera, rescaled to the sample resolution.
+    pub source_camera: Camera,
+    /// The target views' indices, angles and cameras (the images left out).
+    pub targets: Vec<ViewMeta>,
+    /// The subject's body-model fit (`body.json`), when it has one.
+    pub body: Option<BodyParams>,
+}
+
+/// A target view without its images.
+#[derive(Clone, Copy, Debug)]
+pub struct ViewMeta {
+    /// View index in the subject's folder.
+    pub index: usize,
+    /// Yaw of the view, degrees.
+    pub yaw_deg: f32,
+    /// Pitch of the view, degrees.
+    pub pitch_deg: f32,
+    /// The camera, rescaled to the sample resolution.
+    pub camera: Camera,
+}
+
+impl View {
+    /// The view without its images.
+    pub fn meta(&self) -> ViewMeta {
+        ViewMeta {
+            index: self.index,
+            yaw_deg: self.yaw_deg,
+            pitch_deg: self.pitch_deg,
+            camera: self.camera,
+        }
+    }
+}
+
+impl Sample {
+    /// The sample without its pixels.
+    pub fn meta(&self) -> SampleMeta {
+        SampleMeta {
+            subject: self.subject.clone(),
+            source_camera: self.source.camera,
+            targets: self.targets.iter().map(View::meta).collect(),
+            body: self.body.clone(),
+        }
+    }
+}
+
 /// Samples of one split of a dataset, as a Burn dataset.
 #[derive(Clone, Debug)]
 pub struct SampleDataset {
@@ -138,6 +190,30 @@ impl SampleDataset {
         })
     }
 
+    /// A run's training samples: the training subjects at `resolution` x `resolution`,
+    /// `targets` random target views each, drawn with `seed`. The trainer and every server
+    /// that loads its share of a batch open it alike.
+    ///
+    /// # Errors
+    /// As [`SampleDataset::new`].
+    pub fn training(
+        reader: DatasetReader,
+        targets: usize,
+        resolution: u32,
+        seed: u64,
+    ) -> Result<Self> {
+        Self::new(
+            reader,
+            SplitKind::Train,
+            TargetSelection::Random {
+                count: targets,
+                repeats: 1,
+            },
+            Some((resolution, resolution)),
+            seed,
+        )
+    }
+
     /// The subjects of this split.
     pub fn subjects(&self) -> &[String] {
         &self.subjects
@@ -166,16 +242,36 @@ impl SampleDataset {
         }
     }
 
+    /// Item `index` without its pixels (see [`SampleDataset::plan`]): cameras and the body
+    /// fit only, no image is read.
+    ///
+    /// # Errors
+    /// An unreadable `body.json`.
+    pub fn meta(&self, index: usize) -> Result<SampleMeta> {
+        let (subject_index, targets) = self.plan(index);
+        let (w, h) = self.size;
+        let records = &self.cameras[subject_index];
+        Ok(SampleMeta {
+            subject: self.subjects[subject_index].clone(),
+            source_camera: records[SOURCE_VIEW].camera().rescaled(w, h),
+            targets: targets
+                .into_iter()
+                .map(|t| ViewMeta {
+                    index: t,
+                    yaw_deg: records[t].yaw_deg,
+                    pitch_deg: records[t].pitch_deg,
+                    camera: records[t].camera().rescaled(w, h),
+                })
+                .collect(),
+            body: self.body(subject_index)?,
+        })
+    }
+
     /// Loads item `index` (see [`SampleDataset::plan`]).
     pub fn load(&self, index: usize) -> Result<Sample> {
         let (subject_index, targets) = self.plan(index);
         let subject = &self.subjects[subject_index];
-        let body_path = self.reader.body_path(subject);
-        let body = if body_path.exists() {
-            Some(super::io::read_json(&body_path)?)
-        } else {
-            None
-        };
+        let body = self.body(subject_index)?;
         let mut points = self.reader.points(subject)?;
         if (points.width, points.height) != self.size {
             points = resize_points(&points, self.size);
@@ -190,6 +286,16 @@ impl SampleDataset {
             points,
             body,
         })
+    }
+
+    /// The body fit of subject `subject_index`, when it has one.
+    fn body(&self, subject_index: usize) -> Result<Option<BodyParams>> {
+        let body_path = self.reader.body_path(&self.subjects[subject_index]);
+        if body_path.exists() {
+            Ok(Some(super::io::read_json(&body_path)?))
+        } else {
+            Ok(None)
+        }
     }
 
     fn load_view(&self, subject_index: usize, index: usize) -> Result<View> {

@@ -29,8 +29,18 @@ pub struct ConnectError {
     pub reason: String,
 }
 
-/// The devices of `list` (without autodiff): `local` for each local entry, the served devices
-/// connected with `token` and checked against `fingerprint`.
+/// A device of a run's `--devices` list, connected.
+#[derive(Clone, Debug)]
+pub struct Connected {
+    /// The device (without autodiff).
+    pub device: Device,
+    /// Whether its server loads the device's share of each batch itself (`prism serve
+    /// --data`, with the run's dataset); local devices are given theirs.
+    pub loads_shares: bool,
+}
+
+/// The devices of `list`: `local` for each local entry, the served devices connected with
+/// `token` and checked against `fingerprint`.
 ///
 /// # Errors
 /// A served device that cannot be reached in [`CONNECT_TIMEOUT`], refuses the token, or is
@@ -40,11 +50,14 @@ pub fn connect(
     local: &Device,
     token: Option<&str>,
     fingerprint: &Fingerprint,
-) -> Result<Vec<Device>, ConnectError> {
+) -> Result<Vec<Connected>, ConnectError> {
     list.specs()
         .iter()
         .map(|spec| match spec {
-            DeviceSpec::Local => Ok(local.clone()),
+            DeviceSpec::Local => Ok(Connected {
+                device: local.clone(),
+                loads_shares: false,
+            }),
             remote => {
                 let error = |reason: String| ConnectError {
                     device: remote.to_string(),
@@ -62,7 +75,7 @@ fn connect_one(
     spec: &DeviceSpec,
     token: &str,
     fingerprint: &Fingerprint,
-) -> Result<Device, String> {
+) -> Result<Connected, String> {
     let (host, index) = host_of(spec, token);
     let ours = fingerprint.clone();
     let (send, receive) = mpsc::channel();
@@ -81,7 +94,10 @@ fn connect_one(
                 })?;
                 match ours.mismatch(&served) {
                     Some(why) => Err(why),
-                    None => Ok(device),
+                    None => Ok(Connected {
+                        device,
+                        loads_shares: served.data.is_some() && ours.data.is_some(),
+                    }),
                 }
             });
         let _ = send.send(result);

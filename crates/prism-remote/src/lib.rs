@@ -3,16 +3,20 @@
 //! - [`serve`]: `prism serve`, this machine's devices served to a trainer;
 //! - [`DeviceList`]: the `--devices` list of a run, local and served devices;
 //! - [`connect`]: a run's devices connected, each server checked by prism's [`handshake`];
-//! - [`read_token`]: the shared credential, from a file or the environment.
+//! - [`read_token`]: the shared credential, from a file or the environment;
+//! - [`shard`]: each served device's share of a batch, loaded by its own server.
 
 pub mod connect;
 pub mod credential;
 pub mod handshake;
+mod ops;
 pub mod serve;
+pub mod shard;
 pub mod spec;
 
-pub use connect::{ConnectError, accepts_connections, connect};
+pub use connect::{ConnectError, Connected, accepts_connections, connect};
 pub use credential::{CredentialError, TOKEN_ENV, read_token};
 pub use handshake::{Fingerprint, config_digest};
 pub use serve::{ServeError, ServeOptions, TransportKind, serve};
+pub use shard::{ShardRequest, dataset_digest};
 pub use spec::{DeviceList, DeviceSpec, SpecError};

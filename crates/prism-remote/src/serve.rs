@@ -12,7 +12,10 @@ use burn::server::{
 };
 use burn::tensor::Device;
 
+use prism_data::DatasetReader;
+
 use crate::handshake::{self, Fingerprint};
+use crate::shard;
 
 /// How trainers reach the server.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -59,6 +62,9 @@ pub struct ServeOptions {
     pub devices: Vec<Device>,
     /// The handshake's answer.
     pub fingerprint: Fingerprint,
+    /// The dataset the server loads its shares of training batches from, if any (its digest
+    /// belongs in `fingerprint`, see [`Fingerprint::with_data`]).
+    pub data: Option<DatasetReader>,
     /// Iroh: the file holding the server's secret key (created when missing), so that its node
     /// id survives a restart; a new id at every start without it.
     pub identity: Option<PathBuf>,
@@ -105,12 +111,15 @@ pub fn serve(options: ServeOptions, announce: impl FnOnce(&str)) -> Result<(), S
     let Some(first) = options.devices.first() else {
         return Err(ServeError::Burn("no device to serve".into()));
     };
-    let server = handshake::register(
+    let mut server = handshake::register(
         RemoteServer::new(options.devices.clone()).with_authorizer(authorizer),
         first,
         &options.fingerprint,
     )
     .map_err(ServeError::Burn)?;
+    if let Some(reader) = options.data {
+        server = shard::register(server, first, reader).map_err(ServeError::Burn)?;
+    }
     let (transport, entry) = match options.transport {
         TransportKind::WebSocket => {
             let listener =

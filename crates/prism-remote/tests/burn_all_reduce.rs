@@ -26,6 +26,7 @@ fn served_device() -> Device {
         token: "t".into(),
         devices: vec![Device::flex()],
         fingerprint: Fingerprint::this_build(None),
+        data: None,
         identity: None,
         public_relays: false,
     };
@@ -40,6 +41,7 @@ fn served_device() -> Device {
     )
     .unwrap()
     .remove(0)
+    .device
 }
 
 #[test]

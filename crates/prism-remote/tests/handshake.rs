@@ -24,6 +24,7 @@ fn start(transport: TransportKind, fingerprint: Fingerprint) -> String {
         token: TOKEN.into(),
         devices: vec![Device::flex()],
         fingerprint,
+        data: None,
         identity: None,
         public_relays: false,
     };
@@ -40,7 +41,9 @@ fn start(transport: TransportKind, fingerprint: Fingerprint) -> String {
 
 fn connect_to(entry: &str, token: &str, ours: &Fingerprint) -> Result<Vec<Device>, String> {
     let list: DeviceList = entry.parse().unwrap();
-    connect(&list, &Device::flex(), Some(token), ours).map_err(|e| e.to_string())
+    connect(&list, &Device::flex(), Some(token), ours)
+        .map(|devices| devices.into_iter().map(|c| c.device).collect())
+        .map_err(|e| e.to_string())
 }
 
 #[test]
@@ -62,6 +65,7 @@ fn a_server_of_this_release_and_config_is_used_over_both_transports() {
 fn another_release_or_model_config_is_refused_before_any_step() {
     let ours = Fingerprint::this_build(Some(config_digest("tiny")));
     let older = Fingerprint {
+        data: None,
         prism: "0.0.1".into(),
         config: None,
     };

@@ -1,15 +1,17 @@
-//! The training data of every step: a pure function of (seed, step), loaded ahead of the
-//! training step by worker threads.
+//! The training data of every step: a pure function of (seed, step), split into one share per
+//! device and loaded ahead of the training step by worker threads (or, for a device whose
+//! server loads its own share, described only).
 
 use std::ops::Range;
 use std::sync::Arc;
 use std::sync::mpsc::{Receiver, sync_channel};
 use std::thread;
 
-use prism_data::{DataError, Sample, SampleDataset};
+use prism_data::{DataError, Sample, SampleDataset, SampleMeta};
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
+use rayon::ThreadPool;
 use rayon::prelude::*;
 
 /// Steps loaded ahead of the one being trained on.
@@ -65,10 +67,50 @@ impl DataOrder {
     }
 }
 
-/// The samples of one step, or why they could not be loaded.
-pub type StepSamples = (usize, Result<Vec<Sample>, DataError>);
+/// A device's share of a step's samples.
+#[derive(Clone, Debug)]
+pub enum Share {
+    /// Loaded here, to be sent to the device.
+    Loaded(Vec<Sample>),
+    /// Loaded by the device's server (`prism serve --data`): the dataset items, and what the
+    /// trainer needs of them besides their pixels.
+    Served {
+        /// The items (for [`SampleDataset::load`] on the server).
+        items: Vec<usize>,
+        /// The items' cameras and body fits.
+        metas: Vec<SampleMeta>,
+    },
+}
 
-/// Loads the samples of consecutive steps ahead of training: with `workers > 0` a background
+impl Share {
+    /// (source, target) pairs of the share.
+    pub fn pairs(&self) -> usize {
+        match self {
+            Self::Loaded(samples) => samples.iter().map(|s| s.targets.len()).sum(),
+            Self::Served { metas, .. } => metas.iter().map(|m| m.targets.len()).sum(),
+        }
+    }
+}
+
+/// How `samples` consecutive samples are split among `devices` devices: one range per share,
+/// sizes differing by at most one (fewer shares than devices when there are fewer samples).
+pub fn share_ranges(samples: usize, devices: usize) -> Vec<Range<usize>> {
+    let shares = devices.min(samples).max(1);
+    let (base, extra) = (samples / shares, samples % shares);
+    let mut start = 0;
+    (0..shares)
+        .map(|i| {
+            let len = base + usize::from(i < extra);
+            start += len;
+            start - len..start
+        })
+        .collect()
+}
+
+/// The shares of one step, or why they could not be loaded.
+pub type StepShares = (usize, Result<Vec<Share>, DataError>);
+
+/// Loads the shares of consecutive steps ahead of training: with `workers > 0` a background
 /// thread keeps up to two steps ready, loading each step's samples in parallel on `workers`
 /// threads; with 0 workers each step is loaded when asked for.
 pub struct Prefetcher {
@@ -77,30 +119,71 @@ pub struct Prefetcher {
 
 enum Source {
     Inline {
-        dataset: Arc<SampleDataset>,
-        order: DataOrder,
+        loader: StepLoader,
         steps: Range<usize>,
     },
     Thread {
-        rx: Receiver<StepSamples>,
+        rx: Receiver<StepShares>,
     },
 }
 
+/// What loads a step: the dataset, the data order, and which devices' servers load their own
+/// shares.
+struct StepLoader {
+    dataset: Arc<SampleDataset>,
+    order: DataOrder,
+    served: Vec<bool>,
+}
+
+impl StepLoader {
+    /// The shares of `step`, loaded on `pool` (or on this thread).
+    fn load(&self, step: usize, pool: Option<&ThreadPool>) -> Result<Vec<Share>, DataError> {
+        let items = self.order.items(step);
+        share_ranges(items.len(), self.served.len())
+            .into_iter()
+            .zip(&self.served)
+            .map(|(range, &served)| {
+                let items = items[range].to_vec();
+                if served {
+                    let metas = items
+                        .iter()
+                        .map(|&i| self.dataset.meta(i))
+                        .collect::<Result<_, _>>()?;
+                    return Ok(Share::Served { items, metas });
+                }
+                let samples = match pool {
+                    Some(pool) => pool.install(|| {
+                        items
+                            .par_iter()
+                            .map(|&i| self.dataset.load(i))
+                            .collect::<Result<_, _>>()
+                    }),
+                    None => items.iter().map(|&i| self.dataset.load(i)).collect(),
+                };
+                samples.map(Share::Loaded)
+            })
+            .collect()
+    }
+}
+
 impl Prefetcher {
-    /// Starts loading steps `steps` of `order` from `dataset`.
+    /// Starts loading steps `steps` of `order` from `dataset`, split among one device per
+    /// entry of `served` (true where the device's server loads its own share).
     pub fn start(
         dataset: Arc<SampleDataset>,
         order: DataOrder,
         steps: Range<usize>,
         workers: usize,
+        served: Vec<bool>,
     ) -> Self {
+        let loader = StepLoader {
+            dataset,
+            order,
+            served,
+        };
         if workers == 0 {
             return Self {
-                source: Source::Inline {
-                    dataset,
-                    order,
-                    steps,
-                },
+                source: Source::Inline { loader, steps },
             };
         }
         let (tx, rx) = sync_channel(LOOKAHEAD);
@@ -115,15 +198,9 @@ impl Prefetcher {
                     return;
                 };
                 for step in steps {
-                    let items = order.items(step);
-                    let samples = pool.install(|| {
-                        items
-                            .par_iter()
-                            .map(|&i| dataset.load(i))
-                            .collect::<Result<Vec<_>, _>>()
-                    });
+                    let shares = loader.load(step, Some(&pool));
                     // The receiver is gone when training stopped: stop loading.
-                    if tx.send((step, samples)).is_err() {
+                    if tx.send((step, shares)).is_err() {
                         break;
                     }
                 }
@@ -134,21 +211,12 @@ impl Prefetcher {
         }
     }
 
-    /// The next step's samples, in step order; `None` after the last step.
-    pub fn next_step(&mut self) -> Option<StepSamples> {
+    /// The next step's shares, in step order; `None` after the last step.
+    pub fn next_step(&mut self) -> Option<StepShares> {
         match &mut self.source {
-            Source::Inline {
-                dataset,
-                order,
-                steps,
-            } => {
+            Source::Inline { loader, steps } => {
                 let step = steps.next()?;
-                let samples = order
-                    .items(step)
-                    .into_iter()
-                    .map(|i| dataset.load(i))
-                    .collect();
-                Some((step, samples))
+                Some((step, loader.load(step, None)))
             }
             Source::Thread { rx } => rx.recv().ok(),
         }
@@ -184,5 +252,13 @@ mod tests {
             (0..4).flat_map(|s| order.items(s)).collect::<Vec<_>>(),
             (0..4).flat_map(|s| other.items(s)).collect::<Vec<_>>()
         );
+    }
+
+    #[test]
+    fn shares_cover_the_batch_in_order_with_sizes_one_apart() {
+        assert_eq!(share_ranges(5, 2), vec![0..3, 3..5]);
+        assert_eq!(share_ranges(4, 4), vec![0..1, 1..2, 2..3, 3..4]);
+        assert_eq!(share_ranges(2, 4), vec![0..1, 1..2]);
+        assert_eq!(share_ranges(7, 1), vec![0..7]);
     }
 }

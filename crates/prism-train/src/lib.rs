@@ -57,7 +57,7 @@ pub use checkpoint::{
 pub use clip::{clip_global_norm, global_norm, parameter_values};
 pub use config::{TrainConfig, TrainingConfig, config_name, configs_dir};
 pub use convert::{LVSM_TASK, convert_lvsm};
-pub use data::{DataOrder, Prefetcher};
+pub use data::{DataOrder, Prefetcher, Share, share_ranges};
 pub use error::TrainError;
 pub use evaluate::{EvaluateOptions, Evaluation, SubjectGrid, evaluate, evaluate_checkpoint};
 pub use groups::{
@@ -69,7 +69,7 @@ pub use infer::{
     sweep_views,
 };
 pub use log::{METRICS_FILE, MetricsLog, read_metrics};
-pub use parallel::{DataParallel, fingerprint, training_devices};
+pub use parallel::{DataParallel, TrainingDevice, fingerprint, training_devices};
 pub use plot::{PLOT_FILE, PLOT_SIZE, TrainingCurves, plot_metrics, plot_run};
 pub use predict::{Pairs, forward_pairs, inference_model, synthesise};
 pub use quickstart::{

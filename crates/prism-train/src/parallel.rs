@@ -25,12 +25,23 @@ use prism_remote::{DeviceList, Fingerprint, config_digest};
 
 use crate::config::TrainingConfig;
 use crate::error::{Result, TrainError};
-use crate::served::RESUME_HINT;
+use crate::served::{RESUME_HINT, device_names};
 use crate::step::{StepValues, TrainItem, Trainee};
 
-/// The autodiff devices of a run, the first one the main device: `list`'s local devices on
+/// A device of a run.
+#[derive(Clone, Debug)]
+pub struct TrainingDevice {
+    /// The device, with autodiff.
+    pub device: Device,
+    /// Its `--devices` entry (what errors call it).
+    pub name: String,
+    /// Whether its server loads the device's share of each batch (`prism serve --data`).
+    pub loads_shares: bool,
+}
+
+/// The devices of a run, the first one the main device: `list`'s local devices on
 /// `backend`, and its served devices (`prism serve`) connected with `token` and checked
-/// against `fingerprint` (this release and the run's model config).
+/// against `fingerprint` (this release, the run's model config and dataset).
 ///
 /// The CPU backends (ndarray, flex) have a single device each; several local "devices" are
 /// then the same CPU device used by several worker threads, which exercises the multi-device
@@ -44,19 +55,36 @@ pub fn training_devices(
     list: &DeviceList,
     token: Option<&str>,
     fingerprint: &Fingerprint,
-) -> Result<Vec<Device>> {
+) -> Result<Vec<TrainingDevice>> {
+    let names = device_names(list);
+    let local = |device: Device| (device, false);
     let count = list.len();
-    #[cfg(feature = "wgpu")]
-    if backend == BackendKind::Wgpu && count > 1 && !list.has_remote() {
-        return Ok((0..count)
-            .map(|i| Device::wgpu(burn::tensor::DeviceKind::DiscreteGpu(i)).autodiff())
-            .collect());
-    }
-    if !list.has_remote() {
-        return Ok(vec![backend.autodiff_device()?; count]);
-    }
-    let devices = prism_remote::connect(list, &backend.device()?, token, fingerprint)?;
-    Ok(devices.into_iter().map(Device::autodiff).collect())
+    let devices: Vec<(Device, bool)> = if list.has_remote() {
+        prism_remote::connect(list, &backend.device()?, token, fingerprint)?
+            .into_iter()
+            .map(|c| (c.device.autodiff(), c.loads_shares))
+            .collect()
+    } else {
+        #[cfg(feature = "wgpu")]
+        if backend == BackendKind::Wgpu && count > 1 {
+            (0..count)
+                .map(|i| local(Device::wgpu(burn::tensor::DeviceKind::DiscreteGpu(i)).autodiff()))
+                .collect()
+        } else {
+            vec![local(backend.autodiff_device()?); count]
+        }
+        #[cfg(not(feature = "wgpu"))]
+        vec![local(backend.autodiff_device()?); count]
+    };
+    Ok(devices
+        .into_iter()
+        .zip(names)
+        .map(|((device, loads_shares), name)| TrainingDevice {
+            device,
+            name,
+            loads_shares,
+        })
+        .collect())
 }
 
 /// What a trainer expects of every server: this release, and the digest of `config`'s model
@@ -70,24 +98,40 @@ pub fn fingerprint(config: &TrainingConfig) -> Fingerprint {
 pub struct DataParallel {
     devices: Vec<Device>,
     names: Vec<String>,
+    loads_shares: Vec<bool>,
     multi: Option<MultiDevicesTrainStep<Trainee>>,
 }
 
 impl DataParallel {
-    /// Workers for `devices` (the first is the main device), called `names` in errors (their
-    /// `--devices` entries).
+    /// Workers for `devices` (the first is the main device).
     ///
     /// # Panics
-    /// If `devices` is empty or `names` is not one per device.
-    pub fn new(devices: Vec<Device>, names: Vec<String>) -> Self {
+    /// If `devices` is empty.
+    pub fn new(devices: Vec<TrainingDevice>) -> Self {
         assert!(!devices.is_empty(), "at least one device");
-        assert_eq!(devices.len(), names.len(), "one name per device");
+        let names = devices.iter().map(|d| d.name.clone()).collect();
+        let loads_shares = devices.iter().map(|d| d.loads_shares).collect();
+        let devices: Vec<Device> = devices.into_iter().map(|d| d.device).collect();
         let multi = (devices.len() > 1).then(|| MultiDevicesTrainStep::new(&devices));
         Self {
             devices,
             names,
+            loads_shares,
             multi,
         }
+    }
+
+    /// Per device, whether its server loads its share of each batch.
+    pub fn loads_shares(&self) -> &[bool] {
+        &self.loads_shares
+    }
+
+    /// Device `index`'s failure `why` as an error naming it.
+    pub fn failure(&self, index: usize, why: &str) -> TrainError {
+        TrainError::Worker(format!(
+            "device {index} ({}) failed: {why}",
+            self.names[index]
+        ))
     }
 
     /// The devices, main device first.
@@ -136,17 +180,13 @@ impl DataParallel {
         let (outputs, _) = multi.step(&mut loaders, model).map_err(|e| match e {
             MultiDeviceStepError::Workers(failures) => {
                 let failure = &failures[0];
-                let name = &self.names[failure.device_id];
-                let hint = if name.starts_with("remote:") {
+                let hint = if self.names[failure.device_id].starts_with("remote:") {
                     format!(" (its server stopped answering?); {RESUME_HINT}")
                 } else {
                     String::new()
                 };
-                TrainError::Worker(format!(
-                    "device {} ({name}) failed: {}{hint}",
-                    failure.device_id,
-                    failure.message.lines().next().unwrap_or_default()
-                ))
+                let message = failure.message.lines().next().unwrap_or_default();
+                self.failure(failure.device_id, &format!("{message}{hint}"))
             }
             other => TrainError::Worker(other.to_string()),
         })?;

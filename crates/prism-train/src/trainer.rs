@@ -12,10 +12,11 @@ use std::time::Instant;
 
 use burn::tensor::Device;
 use prism_core::BackendKind;
-use prism_data::{DatasetReader, SampleDataset, SplitKind, TargetSelection};
+use prism_core::backend::is_served;
+use prism_data::{DatasetReader, SampleDataset};
 use prism_losses::ImageScores;
 use prism_model::Prism;
-use prism_remote::DeviceList;
+use prism_remote::{DeviceList, dataset_digest};
 use serde_json::Value;
 
 use crate::cadence::Cadence;
@@ -23,7 +24,7 @@ use crate::config::TrainingConfig;
 use crate::data::{DataOrder, Prefetcher};
 use crate::error::{Result, TrainError};
 use crate::parallel::{fingerprint, training_devices};
-use crate::served::{device_names, guarded};
+use crate::served::guarded;
 use crate::start::{initial_model, prepare_run_folder};
 use crate::step::StepLoss;
 use crate::training_step::TrainingStep;
@@ -158,41 +159,45 @@ pub fn train(config: &TrainingConfig, task: &dyn Task, options: &RunOptions) -> 
         options.backend,
         &options.devices,
         options.token.as_deref(),
-        &fingerprint(&config),
+        &fingerprint(&config).with_data(dataset_digest(&reader)),
     )?;
-    let start = initial_model(&config, resumed.as_ref(), options, &devices[0])?;
+    let start = initial_model(&config, resumed.as_ref(), options, &devices[0].device)?;
     let first = start.step;
     check_unfinished(options, first, config.train.steps)?;
     if let Some(before) = resumed.as_ref().map(|c| c.state.devices)
         && before != devices.len()
     {
         eprintln!(
-            "resuming on {} devices (the run trained on {before} so far): each step's batch is              split into {} shares instead of {before}; the result equals the run's up to float              rounding, not bit for bit",
+            "resuming on {} devices (the run trained on {before} so far): each step's batch is \
+             split into {} shares instead of {before}; the result equals the run's up to float \
+             rounding, not bit for bit",
             devices.len(),
             devices.len().min(config.train.batch_size),
+        );
+    }
+    for device in devices
+        .iter()
+        .filter(|d| is_served(&d.device) && !d.loads_shares)
+    {
+        eprintln!(
+            "{}: its server has no --data, so this trainer sends it its share of every batch \
+             (start it with --data at a copy of the dataset to load it there)",
+            device.name
         );
     }
     let data = TaskData {
         background: reader.meta().background,
     };
-    let names = device_names(&options.devices);
-    let mut step = TrainingStep::new(
-        &config,
-        start,
-        resumed.as_ref(),
-        task,
-        &data,
-        devices,
-        names,
-    )?;
+    let served = devices.iter().map(|d| d.loads_shares).collect();
+    let mut step = TrainingStep::new(&config, start, resumed.as_ref(), task, &data, devices)?;
     let mut cadence = Cadence::start(&config, options, task, &reader, &step, resumed.as_ref())?;
-    let mut prefetcher = prefetch(train_set, &config, first);
-    while let Some((index, samples)) = prefetcher.next_step() {
+    let mut prefetcher = prefetch(train_set, &config, first, served);
+    while let Some((index, shares)) = prefetcher.next_step() {
         let began = Instant::now();
-        let samples = samples?;
+        let shares = shares?;
         cadence.prepared(index, step.prepare(index))?;
         guarded(&options.devices, || {
-            let report = step.run(index, &samples)?;
+            let report = step.run(index, shares)?;
             cadence.after_step(&step, &report, began.elapsed().as_secs_f64())
         })?;
     }
@@ -217,15 +222,10 @@ fn with_steps(config: &TrainingConfig, options: &RunOptions) -> Result<TrainingC
 /// The run's training samples: the dataset's training subjects at the model's resolution,
 /// `train.targets_per_sample` random target views each.
 fn training_set(reader: &DatasetReader, config: &TrainingConfig) -> Result<Arc<SampleDataset>> {
-    let resolution = config.model.resolution as u32;
-    Ok(Arc::new(SampleDataset::new(
+    Ok(Arc::new(SampleDataset::training(
         reader.clone(),
-        SplitKind::Train,
-        TargetSelection::Random {
-            count: config.train.targets_per_sample,
-            repeats: 1,
-        },
-        Some((resolution, resolution)),
+        config.train.targets_per_sample,
+        config.model.resolution as u32,
         config.train.seed,
     )?))
 }
@@ -244,14 +244,25 @@ fn check_unfinished(options: &RunOptions, start: usize, total: usize) -> Result<
     })
 }
 
-/// Loads the samples of steps `start..train.steps` ahead of training, in the run's
-/// [`DataOrder`].
-fn prefetch(train_set: Arc<SampleDataset>, config: &TrainingConfig, start: usize) -> Prefetcher {
+/// Loads the shares of steps `start..train.steps` ahead of training, in the run's
+/// [`DataOrder`], for devices whose servers load their own shares or not (`served`).
+fn prefetch(
+    train_set: Arc<SampleDataset>,
+    config: &TrainingConfig,
+    start: usize,
+    served: Vec<bool>,
+) -> Prefetcher {
     let train = &config.train;
     let order = DataOrder {
         seed: train.seed,
         subjects: train_set.subjects().len(),
         batch_size: train.batch_size,
     };
-    Prefetcher::start(train_set, order, start..train.steps, train.data_workers)
+    Prefetcher::start(
+        train_set,
+        order,
+        start..train.steps,
+        train.data_workers,
+        served,
+    )
 }

@@ -11,8 +11,9 @@ use burn::optim::lr_scheduler::module_lr_scheduler::ModuleLrScheduler;
 use burn::optim::{AdamWConfig, ModuleOptimizer};
 use burn::tensor::Device;
 use prism_core::BackendKind;
-use prism_data::{PrismBatcher, Sample};
+use prism_data::{PrismBatch, PrismBatcher};
 use prism_model::Prism;
+use prism_remote::ShardRequest;
 use serde_json::Value;
 
 use crate::checkpoint::{
@@ -21,9 +22,10 @@ use crate::checkpoint::{
 };
 use crate::clip::clip_global_norm;
 use crate::config::TrainingConfig;
+use crate::data::Share;
 use crate::error::Result;
 use crate::groups::learning_rates_with;
-use crate::parallel::DataParallel;
+use crate::parallel::{DataParallel, TrainingDevice};
 use crate::schedule::WarmupCosine;
 use crate::start::Start;
 use crate::step::{StepLoss, StepValues, TrainItem, Trainee};
@@ -111,13 +113,14 @@ pub struct TrainingStep<'a> {
     grad_clip_norm: f64,
     guard: NonFiniteGuard,
     new_blocks: Vec<usize>,
+    /// What a served device's share is asked for with (its items left empty).
+    shard: ShardRequest,
 }
 
 impl<'a> TrainingStep<'a> {
     /// The step of `task` with `config`, from `start` (with the optimizer and scheduler state
     /// of `resumed`, when resuming), on `devices` (the first is the main device, where `start`'s
-    /// model is; `names` are their `--devices` entries, for errors); each device's objective is
-    /// built here.
+    /// model is); each device's objective is built here.
     ///
     /// # Errors
     /// Unreadable optimizer or scheduler state; an objective that cannot be built.
@@ -127,8 +130,7 @@ impl<'a> TrainingStep<'a> {
         resumed: Option<&Checkpoint>,
         task: &'a dyn Task,
         data: &TaskData,
-        devices: Vec<Device>,
-        names: Vec<String>,
+        devices: Vec<TrainingDevice>,
     ) -> Result<Self> {
         let train = &config.train;
         let total = train.steps;
@@ -153,7 +155,7 @@ impl<'a> TrainingStep<'a> {
         }
         let losses = devices
             .iter()
-            .map(|d| task.step_loss(config, data, d))
+            .map(|d| task.step_loss(config, data, &d.device))
             .collect::<Result<Vec<_>>>()?;
         Ok(Self {
             trainee: Some(Trainee {
@@ -164,7 +166,7 @@ impl<'a> TrainingStep<'a> {
             scheduler,
             backbone,
             heads,
-            parallel: DataParallel::new(devices, names),
+            parallel: DataParallel::new(devices),
             losses,
             task,
             grad_clip_norm: train.grad_clip_norm,
@@ -174,6 +176,12 @@ impl<'a> TrainingStep<'a> {
                 max_in_row: train.max_non_finite_steps,
             },
             new_blocks: start.new_blocks,
+            shard: ShardRequest {
+                targets: train.targets_per_sample,
+                resolution: config.model.resolution as u32,
+                seed: train.seed,
+                items: Vec::new(),
+            },
         })
     }
 
@@ -208,14 +216,15 @@ impl<'a> TrainingStep<'a> {
         self.task.before_step(&mut trainee.prism, step)
     }
 
-    /// Step `step` (0-based) on `samples`: forward and backward on every device, clipping, and
-    /// the optimizer's step unless the loss or the gradient is not finite.
+    /// Step `step` (0-based) on `shares` (one per device, see [`crate::data::share_ranges`]):
+    /// forward and backward on every device, clipping, and the optimizer's step unless the
+    /// loss or the gradient is not finite.
     ///
     /// # Errors
-    /// A worker failure.
-    pub fn run(&mut self, step: usize, samples: &[Sample]) -> Result<StepReport> {
+    /// A worker failure, or a server that cannot load its share.
+    pub fn run(&mut self, step: usize, shares: Vec<Share>) -> Result<StepReport> {
         let lr = self.scheduler.step();
-        let shares = self.shares(samples, step);
+        let shares = self.items(shares, step)?;
         let (grads, values) = self.parallel.forward_backward(self.trainee(), shares)?;
         let (grads, grad_norm) = clip_global_norm(self.trainee(), grads, self.grad_clip_norm);
         let skipped = self.guard.check(values.total(), grad_norm);
@@ -234,27 +243,36 @@ impl<'a> TrainingStep<'a> {
         })
     }
 
-    /// Splits a step's samples into one share per device (consecutive samples, sizes differing
-    /// by at most one), each batched on its device and weighted by its fraction of the pairs.
-    fn shares(&self, samples: &[Sample], step: usize) -> Vec<TrainItem> {
+    /// The step's shares as the devices' training items, each batched on its device (by its
+    /// server, for a device that loads its own share) and weighted by its fraction of the
+    /// pairs.
+    fn items(&self, shares: Vec<Share>, step: usize) -> Result<Vec<TrainItem>> {
         let devices = self.parallel.devices();
-        let shares = devices.len().min(samples.len()).max(1);
-        let pairs: usize = samples.iter().map(|s| s.targets.len()).sum();
-        let (base, extra) = (samples.len() / shares, samples.len() % shares);
-        let mut start = 0;
-        (0..shares)
-            .map(|i| {
-                let len = base + usize::from(i < extra);
-                let chunk = &samples[start..start + len];
-                start += len;
-                let chunk_pairs: usize = chunk.iter().map(|s| s.targets.len()).sum();
-                TrainItem {
-                    batch: PrismBatcher.batch_samples(chunk, &devices[i]),
+        let pairs: usize = shares.iter().map(Share::pairs).sum();
+        shares
+            .into_iter()
+            .enumerate()
+            .map(|(i, share)| {
+                let weight = share.pairs() as f64 / pairs as f64;
+                let batch = match share {
+                    Share::Loaded(samples) => PrismBatcher.batch_samples(&samples, &devices[i]),
+                    Share::Served { items, metas } => {
+                        let request = ShardRequest {
+                            items,
+                            ..self.shard.clone()
+                        };
+                        let planes = prism_remote::shard::load(&devices[i], &request)
+                            .map_err(|why| self.parallel.failure(i, &why))?;
+                        PrismBatch::assemble(&metas, planes)
+                    }
+                };
+                Ok(TrainItem {
+                    batch,
                     loss: self.losses[i].clone(),
-                    weight: chunk_pairs as f64 / pairs as f64,
+                    weight,
                     step,
                     share: i,
-                }
+                })
             })
             .collect()
     }
