@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # Training over served devices on loopback (BENCHMARKS.md, "Training on several machines"):
-# for a config, the step time and the bytes sent per step with 1 local device, and with 1, 2
-# and 4 devices served by `prism serve` (WebSocket, flex) on this machine. The global batch is 4
-# samples for every variant; no validation, no checkpoint inside the timed runs.
+# for a config, the step time and the bytes sent per step with 1 local device, with 1, 2 and 4
+# devices served by `prism serve` (WebSocket, flex) on this machine, and with 2 and 4 served
+# devices whose servers load their shares from a copy of the dataset (`prism serve --data`).
+# The global batch is 4 samples for every variant; no validation, no checkpoint inside the
+# timed runs. The config's synthetic dataset is made in a cache folder of its own.
 #
 #   scripts/remote_bench.sh [CONFIG] [STEPS]      defaults: configs/tiny.toml, 12 steps
 #
@@ -19,6 +21,7 @@ PRISM="$PWD/target/release/prism"
 WORK="$(mktemp -d)"
 trap 'kill $(jobs -p) 2>/dev/null || true; rm -rf "$WORK"' EXIT
 echo "bench-token" > "$WORK/token"
+export PRISM_CACHE_DIR="$WORK/cache"
 # The config with a global batch of 4 samples, no validation, checkpoints only at the end.
 awk '/^\[/{section=$0} section=="[train]" && /^batch_size/{$0="batch_size = 4"}
      section=="[train]" && /^validate_every/{$0="validate_every = 0"}
@@ -46,14 +49,24 @@ row() { # name devices
     "$(echo "($long - $short) / ($STEPS - 2) / 1000000" | bc -l)"
 }
 
+# Starts a server with the extra arguments given; prints its --devices entry.
+serve() {
+  local out="$WORK/serve-$RANDOM.out"
+  "$PRISM" serve --listen 127.0.0.1:0 --transport websocket --token-file "$WORK/token" "$@" \
+    > "$out" 2> /dev/null &
+  until [ -s "$out" ]; do sleep 0.1; done
+  head -1 "$out"
+}
+
 row "1 local" 1
-ENTRIES=()
-for i in 1 2 3 4; do
-  "$PRISM" serve --listen 127.0.0.1:0 --transport websocket --token-file "$WORK/token" \
-    > "$WORK/serve-$i.out" 2> /dev/null &
-  until [ -s "$WORK/serve-$i.out" ]; do sleep 0.1; done
-  ENTRIES+=("$(head -1 "$WORK/serve-$i.out")")
+DATA="$(echo "$WORK"/cache/datasets/*)"
+SENT=() LOADING=()
+for _ in 1 2 3 4; do
+  SENT+=("$(serve)")
+  LOADING+=("$(serve --data "$DATA")")
 done
-row "1 served" "${ENTRIES[0]}"
-row "2 served" "${ENTRIES[0]},${ENTRIES[1]}"
-row "4 served" "$(IFS=,; echo "${ENTRIES[*]}")"
+row "1 served" "${SENT[0]}"
+row "2 served" "${SENT[0]},${SENT[1]}"
+row "4 served" "$(IFS=,; echo "${SENT[*]}")"
+row "2 served, --data" "${LOADING[0]},${LOADING[1]}"
+row "4 served, --data" "$(IFS=,; echo "${LOADING[*]}")"
