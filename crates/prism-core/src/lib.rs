@@ -16,6 +16,7 @@ pub mod progress;
 pub mod protocol;
 pub mod rays;
 pub mod reads;
+pub mod served;
 
 pub use backend::{BackendError, BackendKind};
 pub use camera::{Camera, Intrinsics};

@@ -12,7 +12,7 @@ use burn::server::RemoteServer;
 use burn::tensor::{Device, TensorData};
 use serde::{Deserialize, Serialize};
 
-use crate::ops::{self, Call, ServedOp};
+use prism_core::served::{self as ops, Call, ServedOp};
 
 /// The custom operation's id (versioned: a later change of the answer's layout gets a new id).
 pub const HANDSHAKE_OP: &str = "prism.handshake.v1";

@@ -9,7 +9,6 @@
 pub mod connect;
 pub mod credential;
 pub mod handshake;
-mod ops;
 pub mod serve;
 pub mod shard;
 pub mod spec;

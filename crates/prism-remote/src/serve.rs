@@ -1,5 +1,6 @@
 //! `prism serve`: this machine's devices served to trainers on other machines, through Burn's
-//! remote backend (`burn::server`), behind a shared token, answering prism's handshake.
+//! remote backend (`burn::server`), behind a shared token, answering prism's handshake and
+//! running prism's geometry operations (and, with a dataset, loading shares of batches).
 
 use std::fmt;
 use std::net::{SocketAddr, TcpListener, UdpSocket};
@@ -117,6 +118,7 @@ pub fn serve(options: ServeOptions, announce: impl FnOnce(&str)) -> Result<(), S
         &options.fingerprint,
     )
     .map_err(ServeError::Burn)?;
+    server = prism_render::served::register(server, first).map_err(ServeError::Burn)?;
     if let Some(reader) = options.data {
         server = shard::register(server, first, reader).map_err(ServeError::Burn)?;
     }

@@ -17,7 +17,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::handshake::config_digest;
-use crate::ops::{self, Call, ServedOp};
+use prism_core::served::{self as ops, Call, ServedOp};
 
 /// The operation's id.
 pub const SHARD_OP: &str = "prism.shard.v1";

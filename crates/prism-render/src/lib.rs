@@ -10,11 +10,11 @@
 //! intrinsics and a camera-to-world matrix, pixel centres at `(x + 0.5, y + 0.5)`, images as
 //! `[B, C, H, W]` tensors.
 
-mod detour;
 pub mod error;
 #[cfg(any(feature = "wgpu", feature = "cuda"))]
 mod launch;
 pub mod mesh;
+pub mod served;
 pub mod splat;
 #[cfg(any(feature = "wgpu", feature = "cuda"))]
 mod tiles;

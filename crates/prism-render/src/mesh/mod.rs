@@ -23,7 +23,6 @@ use prism_core::Camera;
 pub use raster::{BAND_ROWS, NEAR_PLANE};
 
 use crate::RenderError;
-use crate::detour::host_for;
 use op::{MeshBackend, MeshCameras, MeshFaces};
 
 /// What [`rasterize`] sees at every pixel centre of `B` cameras of `H x W` pixels. Buffers are
@@ -205,15 +204,6 @@ pub fn rasterize_maps(
         return Err(RenderError::Input(format!(
             "face {f:?} indexes past the {v} vertices"
         )));
-    }
-    let device = vertices.device();
-    if let Some(host) = host_for(&device) {
-        let maps = rasterize_maps(vertices.inner().to_device(&host), faces, cameras)?;
-        return Ok(FragmentMaps {
-            faces: maps.faces.to_device(&device),
-            barycentrics: maps.barycentrics.to_device(&device),
-            depth: maps.depth.to_device(&device),
-        });
     }
     let out = <Dispatch as MeshBackend>::mesh_rasterize(
         vertices.inner().into_dispatch(),

@@ -42,6 +42,7 @@ pub struct FragmentTensors<B: Backend> {
 #[backend_extension(
     Flex,
     NdArray,
+    Remote,
     Cube: cfg(any(feature = "wgpu", feature = "cuda")),
     Fusion: cfg(any(feature = "wgpu", feature = "cuda"))
 )]

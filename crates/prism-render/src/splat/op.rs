@@ -49,7 +49,13 @@ pub struct SplatInputs<B: Backend> {
 pub struct SplatCameras(pub Arc<[Camera]>);
 
 /// The Gaussian rasterizer as a backend operation.
-#[backend_extension(Autodiff, Flex, NdArray, Cube: cfg(any(feature = "wgpu", feature = "cuda")))]
+#[backend_extension(
+    Autodiff,
+    Flex,
+    NdArray,
+    Remote,
+    Cube: cfg(any(feature = "wgpu", feature = "cuda"))
+)]
 pub trait SplatBackend: Backend {
     /// Renders `B x N` Gaussians into `B` cameras: `[B, C + 2, H, W]` holding the composited
     /// features, the alpha `1 - T` and the accumulated depth `sum_i w_i z_i`.

@@ -8,7 +8,6 @@ use prism_core::Camera;
 
 use super::op::{SplatBackend, SplatCameras, SplatInputs};
 use crate::RenderError;
-use crate::detour::host_for;
 
 /// `B x N` 3D Gaussians: `N` per batch element, each batch element seen by its own camera.
 ///
@@ -119,23 +118,6 @@ pub fn render(gaussians: &Gaussians, cameras: &[Camera]) -> Result<Rendered, Ren
         return Err(RenderError::Input(format!(
             "cameras of one batch must share one image size, got {w}x{h} and {w2}x{h2}"
         )));
-    }
-    let device = gaussians.means.device();
-    if let Some(host) = host_for(&device) {
-        let moved = |t: &Tensor<3>| t.clone().to_device(&host);
-        let on_host = Gaussians {
-            means: moved(&gaussians.means),
-            log_scales: moved(&gaussians.log_scales),
-            rotations: moved(&gaussians.rotations),
-            opacity_logits: moved(&gaussians.opacity_logits),
-            features: moved(&gaussians.features),
-        };
-        let rendered = render(&on_host, cameras)?;
-        return Ok(Rendered {
-            features: rendered.features.to_device(&device),
-            alpha: rendered.alpha.to_device(&device),
-            depth: rendered.depth.to_device(&device),
-        });
     }
     let inputs = SplatInputs {
         means: gaussians.means.clone().into_dispatch(),

@@ -24,7 +24,6 @@ pub use host::PLANE_AXES;
 use op::TriplaneBackend;
 
 use crate::RenderError;
-use crate::detour::host_for;
 
 /// Samples the triplane `planes` `[3, C, R, R]` (planes `xy`, `xz`, `yz`) at the points
 /// `coords` `[B, 3, H, W]` (`x y z` in `[-1, 1]`): `[B, C, H, W]`, the sum of the three
@@ -52,10 +51,6 @@ pub fn sample_triplane(planes: Tensor<4>, coords: Tensor<4>) -> Result<Tensor<4>
         return Err(RenderError::Input(
             "triplane planes and coordinates are on different devices".into(),
         ));
-    }
-    if let Some(host) = host_for(&device) {
-        let sampled = sample_triplane(planes.to_device(&host), coords.to_device(&host))?;
-        return Ok(sampled.to_device(&device));
     }
     Ok(Tensor::from_dispatch(
         <Dispatch as TriplaneBackend>::triplane_sample(

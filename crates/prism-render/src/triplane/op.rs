@@ -19,7 +19,13 @@ use super::host::{self, Dims};
 use crate::transfer::{to_device, to_host};
 
 /// Triplane sampling as a backend operation.
-#[backend_extension(Autodiff, Flex, NdArray, Cube: cfg(any(feature = "wgpu", feature = "cuda")))]
+#[backend_extension(
+    Autodiff,
+    Flex,
+    NdArray,
+    Remote,
+    Cube: cfg(any(feature = "wgpu", feature = "cuda"))
+)]
 pub trait TriplaneBackend: Backend {
     /// Samples `planes` `[3, C, R, R]` at `coords` `[B, 3, H, W]` (in `[-1, 1]`): `[B, C, H, W]`,
     /// the sum of the three planes' bilinear samples.

@@ -1,5 +1,6 @@
-//! prism's operations on a server: custom operations of Burn's remote backend, registered for
-//! the served devices' backend, and the byte messages they exchange with the trainer.
+//! prism's operations on a `prism serve` server: custom operations of Burn's remote backend,
+//! registered for the served devices' backend, their calls from the trainer, and the byte
+//! messages they exchange.
 //!
 //! A custom operation carries no arguments besides tensors, so a message (a JSON text) travels
 //! as a 1-D `f32` tensor holding one byte per value, zero-padded.
@@ -12,10 +13,38 @@ use burn::server::RemoteServer;
 use burn::tensor::{DType, Device, Shape, Tensor, TensorData, read_sync};
 
 /// A tensor of Burn's remote backend (a handle to a tensor on a server).
-pub(crate) type ServerTensor = <Remote as BackendTypes>::FloatTensorPrimitive;
+pub type ServerTensor = <Remote as BackendTypes>::FloatTensorPrimitive;
 
-/// One of prism's operations, as the server runs it on backend `B`.
-pub(crate) trait ServedOp: Clone + Send + Sync + 'static {
+/// Evaluates `$body` with the type `$B` naming the backend of the served device `$device`
+/// (Burn takes a server's custom operations for that backend only): `Ok(body)`, or an error
+/// for a device of a backend that cannot be served (a remote device). The GPU backends are
+/// included where the calling crate has its `wgpu` or `cuda` feature.
+#[macro_export]
+macro_rules! for_served_backend {
+    ($device:expr, $B:ident => $body:expr) => {{
+        #[allow(deprecated)] // burn-ndarray is deprecated upstream; prism's tests serve it
+        match $device.clone().inner().as_dispatch() {
+            ::burn::backend::DispatchDevice::Flex(_) => {
+                type $B = ::burn::backend::Flex;
+                Ok($body)
+            }
+            ::burn::backend::DispatchDevice::NdArray(_) => {
+                type $B = ::burn::backend::NdArray;
+                Ok($body)
+            }
+            #[cfg(any(feature = "wgpu", feature = "cuda"))]
+            ::burn::backend::DispatchDevice::Cube(_) => {
+                type $B = ::burn::backend::Cube;
+                Ok($body)
+            }
+            other => Err(format!("cannot serve the device {other:?}")),
+        }
+    }};
+}
+
+/// One of prism's operations with state (a handler object), as the server runs it on any
+/// backend `B`.
+pub trait ServedOp: Clone + Send + Sync + 'static {
     /// The operation's id (versioned: a change of its inputs or outputs gets a new id).
     const ID: &'static str;
 
@@ -29,42 +58,25 @@ pub(crate) trait ServedOp: Clone + Send + Sync + 'static {
     );
 }
 
-/// `server` running `op` on the backend of `device` (Burn takes custom operations for the
-/// served devices' backend only).
+/// `server` running `op` on the backend of `device`.
 ///
 /// # Errors
 /// A device of a backend that cannot be served (a remote device).
-#[allow(deprecated)] // burn-ndarray is deprecated upstream; prism's tests still serve it
-pub(crate) fn register<O: ServedOp>(
+pub fn register<O: ServedOp>(
     server: RemoteServer,
     device: &Device,
     op: O,
 ) -> Result<RemoteServer, String> {
-    match device.clone().inner().as_dispatch() {
-        DispatchDevice::Flex(_) => {
-            use burn::backend::Flex;
-            Ok(server.with_custom_op::<Flex, _>(O::ID, move |h, ir, d| op.run::<Flex>(h, ir, d)))
-        }
-        DispatchDevice::NdArray(_) => {
-            use burn::backend::NdArray;
-            Ok(server.with_custom_op::<NdArray, _>(O::ID, move |h, ir, d| {
-                op.run::<NdArray>(h, ir, d);
-            }))
-        }
-        #[cfg(any(feature = "wgpu", feature = "cuda"))]
-        DispatchDevice::Cube(_) => {
-            use burn::backend::Cube;
-            Ok(server.with_custom_op::<Cube, _>(O::ID, move |h, ir, d| op.run::<Cube>(h, ir, d)))
-        }
-        other => Err(format!("cannot serve the device {other:?}")),
-    }
+    for_served_backend!(device, B => server.with_custom_op::<B, _>(O::ID, move |h, ir, d| {
+        op.run::<B>(h, ir, d);
+    }))
 }
 
 /// A message of at most `len` bytes as the values of a tensor.
 ///
 /// # Panics
 /// If the message is longer than `len` (prism's messages have fixed bounds).
-pub(crate) fn encode(message: &[u8], len: usize) -> Vec<f32> {
+pub fn encode(message: &[u8], len: usize) -> Vec<f32> {
     assert!(
         message.len() <= len,
         "a message of {} bytes, {len} at most",
@@ -76,7 +88,7 @@ pub(crate) fn encode(message: &[u8], len: usize) -> Vec<f32> {
 }
 
 /// The message held by `values` (up to the first zero).
-pub(crate) fn decode(values: &[f32]) -> Vec<u8> {
+pub fn decode(values: &[f32]) -> Vec<u8> {
     values
         .iter()
         .take_while(|&&v| v != 0.0)
@@ -88,7 +100,7 @@ pub(crate) fn decode(values: &[f32]) -> Vec<u8> {
 ///
 /// # Errors
 /// A failed read, or values that are not `f32`.
-pub(crate) fn read_message(tensor: ServerTensor) -> Result<Vec<u8>, String> {
+pub fn read_message(tensor: ServerTensor) -> Result<Vec<u8>, String> {
     let data = read_sync(<Remote as FloatTensorOps<Remote>>::float_into_data(tensor))
         .map_err(|e| format!("reading the server's answer failed: {e:?}"))?;
     let values = data
@@ -99,7 +111,7 @@ pub(crate) fn read_message(tensor: ServerTensor) -> Result<Vec<u8>, String> {
 }
 
 /// The message held by input `index` of `op` on the server.
-pub(crate) fn input_message<B: BackendIr>(
+pub fn input_message<B: BackendIr>(
     handles: &mut HandleContainer<B::Handle>,
     op: &CustomOpIr,
     index: usize,
@@ -113,7 +125,7 @@ pub(crate) fn input_message<B: BackendIr>(
 }
 
 /// Registers `values` (of `shape`) on `device` as output `index` of `op`.
-pub(crate) fn put_output<B: BackendIr>(
+pub fn put_output<B: BackendIr>(
     handles: &mut HandleContainer<B::Handle>,
     op: &CustomOpIr,
     index: usize,
@@ -126,7 +138,7 @@ pub(crate) fn put_output<B: BackendIr>(
 
 /// A call of operation `id` on the server of the remote `device` (a device of Burn's
 /// remote backend, with or without autodiff).
-pub(crate) struct Call {
+pub struct Call {
     client: CustomOpClient,
     inputs: Vec<TensorIr>,
     outputs: Vec<TensorIr>,
@@ -138,7 +150,7 @@ impl Call {
     ///
     /// # Errors
     /// `device` is not a served device.
-    pub(crate) fn new(device: &Device) -> Result<Self, String> {
+    pub fn new(device: &Device) -> Result<Self, String> {
         let bare = device.clone().inner();
         let DispatchDevice::Remote(remote) = bare.as_dispatch() else {
             return Err("not a served device".into());
@@ -152,18 +164,23 @@ impl Call {
     }
 
     /// Adds an input: `values` sent to the server.
-    pub(crate) fn input(mut self, values: Vec<f32>) -> Self {
+    pub fn input(self, values: Vec<f32>) -> Self {
         let len = values.len();
         let tensor = Tensor::<1>::from_data(TensorData::new(values, [len]), &self.device);
         let tensor = tensor
             .try_into_primitive::<Remote>()
             .expect("a tensor made on a served device is a remote tensor");
+        self.input_tensor(tensor)
+    }
+
+    /// Adds an input: a tensor already on the server.
+    pub fn input_tensor(mut self, tensor: ServerTensor) -> Self {
         self.inputs.push(tensor.into_ir());
         self
     }
 
     /// Adds an `f32` output of `shape`.
-    pub(crate) fn output(mut self, shape: impl Into<Shape>) -> Self {
+    pub fn output(mut self, shape: impl Into<Shape>) -> Self {
         self.outputs.push(TensorIr::uninit(
             self.client.create_empty_handle(),
             shape.into(),
@@ -173,13 +190,13 @@ impl Call {
     }
 
     /// Sends the call; its outputs, on the server, in the order they were added.
-    pub(crate) fn send(self, id: &'static str) -> Vec<ServerTensor> {
+    pub fn send(self, id: &'static str) -> Vec<ServerTensor> {
         self.client
             .register(CustomOpIr::new(id, &self.inputs, &self.outputs))
     }
 }
 
 /// A server's tensor as a tensor of the served device: no gradient flows into it (data).
-pub(crate) fn served_tensor<const D: usize>(tensor: ServerTensor) -> Tensor<D> {
+pub fn served_tensor<const D: usize>(tensor: ServerTensor) -> Tensor<D> {
     Tensor::from_primitive::<Remote>(tensor)
 }
