@@ -137,7 +137,7 @@ fn max_difference(a: &[Vec<f32>], b: &[Vec<f32>]) -> f32 {
 }
 
 #[test]
-fn two_served_devices_train_like_one_local_device() {
+fn served_devices_train_like_one_local_device() {
     let dir = scratch("equivalence");
     let (config, token) = setup(&dir, &tiny_config(2));
     let local = dir.join("local");
@@ -169,6 +169,25 @@ fn two_served_devices_train_like_one_local_device() {
         let diff = max_difference(&weights(&out), &expected);
         assert!(diff < 1e-5, "{transport}: max difference {diff}");
     }
+    // One server serving two devices (a node's GPUs): it prints one entry per device.
+    let node = Server::start("websocket", &token, &["--devices", "2", "--data", s(&data)]);
+    let entries: Vec<&str> = node.entry.split(',').collect();
+    assert!(
+        entries.len() == 2 && entries[0].ends_with("#0") && entries[1].ends_with("#1"),
+        "{}",
+        node.entry
+    );
+    let out = dir.join("node");
+    success(train(
+        &config,
+        &out,
+        &["--devices", &node.entry, "--token-file", s(&token)],
+    ));
+    let diff = max_difference(&weights(&out), &expected);
+    assert!(
+        diff < 1e-5,
+        "one server, two devices: max difference {diff}"
+    );
 }
 
 #[test]

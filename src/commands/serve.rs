@@ -22,9 +22,13 @@ pub struct ServeArgs {
     /// network only).
     #[arg(long, default_value = "iroh")]
     transport: TransportKind,
-    /// The backend whose device is served: ndarray, flex, wgpu or cuda.
+    /// The backend whose devices are served: ndarray, flex, wgpu or cuda.
     #[arg(long, default_value = "flex")]
     backend: BackendKind,
+    /// Devices to serve: the GPUs 0..N of a GPU backend (all of a multi-GPU node); one
+    /// `--devices` entry is printed per device.
+    #[arg(long, value_name = "N", default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..))]
+    devices: u16,
     /// Serve only trainers of this config's model (refused before any step otherwise).
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
@@ -62,18 +66,23 @@ impl ServeArgs {
             listen: self.listen,
             transport: self.transport,
             token,
-            devices: vec![self.backend.device()?],
+            devices: self.backend.devices(usize::from(self.devices))?,
             fingerprint,
             data,
             identity: self.identity,
             public_relays: self.public_relays,
         };
-        let backend = self.backend;
+        let (backend, count) = (self.backend, self.devices);
         serve(options, |entry| {
             // The one line to paste on the trainer's side; stdout, flushed, for scripts.
             println!("{entry}");
+            let devices = if count == 1 {
+                format!("the {backend} device")
+            } else {
+                format!("{count} {backend} devices")
+            };
             eprintln!(
-                "prism serve: serving the {backend} device{loads}; train with --devices {entry} \
+                "prism serve: serving {devices}{loads}; train with --devices {entry} \
                  --token-file FILE (Ctrl+C stops)"
             );
         })?;

@@ -46,6 +46,28 @@ impl BackendKind {
         }
     }
 
+    /// `count` devices of this backend (without autodiff): the GPUs `0..count` of a GPU
+    /// backend (wgpu's discrete GPUs, CUDA's ordinals; one device is the backend's default),
+    /// the one CPU device `count` times for the CPU backends (one worker thread each).
+    ///
+    /// # Errors
+    /// When the backend was not compiled in.
+    pub fn devices(self, count: usize) -> Result<Vec<Device>, BackendError> {
+        let first = self.device()?;
+        if count <= 1 {
+            return Ok(vec![first]);
+        }
+        Ok(match self {
+            #[cfg(feature = "wgpu")]
+            Self::Wgpu => (0..count)
+                .map(|i| Device::wgpu(burn::tensor::DeviceKind::DiscreteGpu(i)))
+                .collect(),
+            #[cfg(feature = "cuda")]
+            Self::Cuda => (0..count).map(|i| Device::cuda(i)).collect(),
+            _ => vec![first; count],
+        })
+    }
+
     /// The training device of this backend: the same device with autodiff enabled.
     pub fn autodiff_device(self) -> Result<Device, BackendError> {
         Ok(self.device()?.autodiff())

@@ -98,8 +98,8 @@ pub enum ServeError {
 }
 
 /// Serves `options.devices` until SIGINT or SIGTERM (Ctrl+C elsewhere). `announce` receives,
-/// once the signal handlers are in place, the `--devices` entry a trainer uses to reach
-/// device 0 (a trainer dialling before the server has bound is answered once it has: Burn's
+/// once the signal handlers are in place, the `--devices` list a trainer uses to reach the
+/// served devices (one entry per device, `#I` naming device `I` when there are several) (a trainer dialling before the server has bound is answered once it has: Burn's
 /// client retries).
 ///
 /// # Errors
@@ -109,6 +109,7 @@ pub fn serve(options: ServeOptions, announce: impl FnOnce(&str)) -> Result<(), S
         TokenAuthorizer::new(options.token.as_str())
             .map_err(|_| ServeError::Burn("the token is empty".into()))?,
     );
+    let count = options.devices.len();
     let Some(first) = options.devices.first() else {
         return Err(ServeError::Burn("no device to serve".into()));
     };
@@ -172,12 +173,24 @@ pub fn serve(options: ServeOptions, announce: impl FnOnce(&str)) -> Result<(), S
         // the line is read stops the server cleanly.
         let stop = stop_signal().map_err(|e| ServeError::Burn(format!("signal handlers: {e}")))?;
         let serving = server.serve_async(transport);
-        announce(&entry);
+        announce(&entries(&entry, count));
         tokio::select! {
             served = serving => served.map_err(|e| ServeError::Burn(e.to_string())),
             () = stop => Ok(()),
         }
     })
+}
+
+/// The `--devices` list of `count` devices served at `entry`: the entry itself for one
+/// device, `entry#0,entry#1,...` for several.
+fn entries(entry: &str, count: usize) -> String {
+    if count == 1 {
+        return entry.to_string();
+    }
+    (0..count)
+        .map(|i| format!("{entry}#{i}"))
+        .collect::<Vec<_>>()
+        .join(",")
 }
 
 /// Resolves at the first SIGINT or SIGTERM; the handlers are installed when this returns.

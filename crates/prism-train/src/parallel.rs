@@ -46,7 +46,7 @@ pub struct TrainingDevice {
 /// The CPU backends (ndarray, flex) have a single device each; several local "devices" are
 /// then the same CPU device used by several worker threads, which exercises the multi-device
 /// path (and can use idle cores) but is not faster than one device with its own threads. With
-/// the `wgpu` feature, wgpu gives the discrete GPUs `0..count` (one device: wgpu's default).
+/// a GPU backend, the GPUs `0..count` ([`BackendKind::devices`]).
 ///
 /// # Errors
 /// A backend that is not compiled in; a served device that cannot be used.
@@ -65,16 +65,11 @@ pub fn training_devices(
             .map(|c| (c.device.autodiff(), c.loads_shares))
             .collect()
     } else {
-        #[cfg(feature = "wgpu")]
-        if backend == BackendKind::Wgpu && count > 1 {
-            (0..count)
-                .map(|i| local(Device::wgpu(burn::tensor::DeviceKind::DiscreteGpu(i)).autodiff()))
-                .collect()
-        } else {
-            vec![local(backend.autodiff_device()?); count]
-        }
-        #[cfg(not(feature = "wgpu"))]
-        vec![local(backend.autodiff_device()?); count]
+        backend
+            .devices(count)?
+            .into_iter()
+            .map(|d| local(d.autodiff()))
+            .collect()
     };
     Ok(devices
         .into_iter()
