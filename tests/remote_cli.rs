@@ -10,6 +10,7 @@ mod common;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
@@ -65,10 +66,15 @@ struct Server {
     child: Child,
     /// The `--devices` entry it printed.
     entry: String,
+    /// Its stderr, a file beside the token.
+    log: PathBuf,
 }
 
 impl Server {
     fn start(transport: &str, token: &Path, extra: &[&str]) -> Self {
+        static STARTED: AtomicUsize = AtomicUsize::new(0);
+        let n = STARTED.fetch_add(1, Ordering::Relaxed);
+        let log = token.with_file_name(format!("serve-{n}.log"));
         let mut child = prism(&[
             "serve",
             "--listen",
@@ -80,7 +86,7 @@ impl Server {
         ])
         .args(extra)
         .stdout(Stdio::piped())
-        .stderr(Stdio::null())
+        .stderr(std::fs::File::create(&log).unwrap())
         .spawn()
         .unwrap();
         let stdout = child.stdout.take().unwrap();
@@ -96,6 +102,7 @@ impl Server {
         Self {
             child,
             entry: entry.trim().to_string(),
+            log,
         }
     }
 }
@@ -299,6 +306,12 @@ fn refusals_are_one_clear_line() {
         &["--devices", &server.entry, "--token-file", s(&wrong)],
     ));
     assert!(err.contains("refused the credential"), "{err}");
+    let said = std::fs::read_to_string(&server.log).unwrap();
+    let refusals: Vec<&str> = said.lines().filter(|l| l.contains("refused")).collect();
+    assert!(
+        refusals.len() == 1 && refusals[0].contains("wrong or missing credential"),
+        "{said}"
+    );
     let err = failure(train(
         &config,
         &run,
