@@ -1,6 +1,7 @@
 //! Training on devices served by `prism serve`, end to end through the built binary on
 //! loopback: two servers (WebSocket, then Iroh; one loading its shares from its own copy of
-//! the dataset) train like one local device with the same global batch; a killed server stops
+//! the dataset) and one server of two devices train like one local device with the same
+//! global batch, and so does the student's distillation; a killed server stops
 //! the trainer with its name and the run resumes; a server of another model config or
 //! dataset, a wrong token and malformed or unreachable devices are refused with one clear
 //! line, and a server that cannot read its copy of the dataset is named with the file.
@@ -195,6 +196,46 @@ fn served_devices_train_like_one_local_device() {
         diff < 1e-5,
         "one server, two devices: max difference {diff}"
     );
+}
+
+#[test]
+fn distill_student_trains_on_served_devices_like_on_one_local_device() {
+    let dir = scratch("distill");
+    let (config, token) = setup(&dir, &tiny_config(2));
+    let teacher = dir.join("teacher");
+    success(train(&config, &teacher, &[]));
+    // Five steps: the first stitching switch (step 4) happens on the served devices too.
+    let distill = |out: &Path, extra: &[&str]| {
+        let mut cmd = prism_with_cache(&cache(), &["distill-student"]);
+        cmd.args(["--config", s(&config), "--teacher", s(&teacher)])
+            .args([
+                "--out",
+                s(out),
+                "--steps",
+                "5",
+                "--backend",
+                "flex",
+                "--quiet",
+            ])
+            .args(extra);
+        cmd
+    };
+    let local = dir.join("student-local");
+    success(distill(&local, &[]));
+    let data = dataset_copy(&dir, |_| {});
+    let servers = [
+        Server::start("websocket", &token, &["--data", s(&data)]),
+        Server::start("websocket", &token, &[]),
+    ];
+    let devices = format!("{},{}", servers[0].entry, servers[1].entry);
+    let served = dir.join("student-served");
+    success(distill(
+        &served,
+        &["--devices", &devices, "--token-file", s(&token)],
+    ));
+    assert_eq!(Checkpoint::read(&served).unwrap().state.devices, 2);
+    let diff = max_difference(&weights(&served), &weights(&local));
+    assert!(diff < 1e-5, "max difference {diff}");
 }
 
 #[test]
