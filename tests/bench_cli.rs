@@ -94,8 +94,10 @@ fn bench_times_teacher_student_linear_and_the_training_step() {
         peak(6),
         peak(1)
     );
-    // Bigger images need more memory for the same model.
-    assert!(peak(1) > peak(0), "32 px {} vs 16 px {}", peak(1), peak(0));
+    // Bigger images need more memory for the same model. Compared on the student's rows: the
+    // first row can also hold the first-use scratch of worker threads that join only then (seen
+    // under CI load: teacher 16 px 3.0 MB, 32 px 1.0 MB).
+    assert!(peak(3) > peak(2), "32 px {} vs 16 px {}", peak(3), peak(2));
     assert!(stdout.contains("train_step"), "{stdout}");
     let _ = std::fs::remove_dir_all(&dir);
 }
