@@ -172,6 +172,17 @@ fn evaluate_writes_every_key_the_report_and_the_grids() {
         assert!(gs[key].as_f64().unwrap().is_finite(), "{gs}");
     }
     assert_ne!(gs["psnr"], v["psnr"]);
+    // Every method is also scored in the disoccluded region; the copy of the source scores
+    // worse there than overall (those are the pixels it cannot explain).
+    for method in [&v, copy, gs] {
+        for key in ["psnr_disoccluded", "ssim_disoccluded", "lpips_disoccluded"] {
+            assert!(method[key].as_f64().unwrap().is_finite(), "{key}: {method}");
+        }
+    }
+    assert!(
+        copy["psnr_disoccluded"].as_f64().unwrap() < copy["psnr"].as_f64().unwrap(),
+        "{copy}"
+    );
     assert_eq!(gs["subjects"][name]["views"], 100);
     for axis in ["yaw", "pitch"] {
         assert_eq!(bins(gs, axis), bins(&v, axis), "{axis}");

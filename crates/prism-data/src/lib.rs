@@ -4,6 +4,7 @@
 
 pub mod batch;
 pub mod check;
+pub mod disocclusion;
 pub mod error;
 pub mod io;
 pub mod plan;
@@ -15,6 +16,7 @@ pub mod writer;
 
 pub use batch::{BatchPixels, PIXEL_PLANES, PairInfo, PrismBatch, PrismBatcher};
 pub use check::{CheckReport, Problem, check_dataset};
+pub use disocclusion::disoccluded_region;
 pub use error::DataError;
 pub use io::{Mask, PointMap};
 pub use reader::DatasetReader;

@@ -7,7 +7,9 @@
 //!
 //! Every score comes with the same scores, on the same views, of the "copy the source view"
 //! baseline (view 0 taken as the prediction of every target view), and, for a model with a 3DGS
-//! head, of its render `I_gs`.
+//! head, of its render `I_gs`. Each method is also scored in the disoccluded region of every
+//! view (the target's foreground that the source does not see, where a warp has nothing to
+//! copy; `prism_data::disoccluded_region`).
 
 use std::collections::BTreeMap;
 use std::fs;
@@ -19,8 +21,11 @@ use image::RgbImage;
 use indicatif::ProgressBar;
 use prism_core::BackendKind;
 use prism_core::protocol::EVAL_TARGETS;
-use prism_data::{DatasetReader, PrismBatcher, Sample, SampleDataset, SplitKind, TargetSelection};
-use prism_losses::{ImageScores, Lpips, score_images};
+use prism_data::{
+    DatasetReader, PrismBatcher, Sample, SampleDataset, SplitKind, TargetSelection,
+    disoccluded_region,
+};
+use prism_losses::{ImageScores, Lpips, score_images, score_region};
 use prism_model::Prism;
 use serde::Serialize;
 
@@ -30,7 +35,7 @@ use crate::images::{error_map, save_png, tile};
 use crate::log::METRICS_FILE;
 use crate::predict::{Pairs, forward_pairs, inference_model, synthesise};
 use crate::report::{EvaluationFiles, write_evaluation};
-use crate::tally::{MeanScores, MethodScores, PerAngle, Tally};
+use crate::tally::{DisoccludedScores, MeanScores, MethodScores, PerAngle, Tally};
 use crate::validate::validation_views;
 use prism_core::images::HostImages;
 
@@ -83,6 +88,10 @@ pub struct Evaluation {
     pub subjects: BTreeMap<String, MeanScores>,
     /// The scores by view angle.
     pub per_angle: PerAngle,
+    /// The model's scores in the disoccluded region (`psnr_disoccluded`, `ssim_disoccluded`,
+    /// `lpips_disoccluded` in the JSON).
+    #[serde(flatten)]
+    pub disoccluded: Option<DisoccludedScores>,
     /// Image side of the evaluation, pixels (the model's resolution).
     pub resolution: u32,
     /// Target views per subject.
@@ -217,14 +226,16 @@ pub fn evaluate(
             let out = forward_pairs(if has_gs { model } else { &fast }, &pairs);
             let pred = out.image.clamp(0.0, 1.0);
             let gt = batch.target_image.clone();
-            nvs.add_batch(&samples, &score_images(pred.clone(), gt.clone(), lpips));
-            let copy_scores = score_images(batch.source_image.clone(), gt.clone(), lpips);
-            copy.add_batch(&samples, &copy_scores);
+            let region = disoccluded_regions(&samples, device);
+            let score = |tally: &mut Tally, image: Tensor<4>| {
+                tally.add_batch(&samples, &score_images(image.clone(), gt.clone(), lpips));
+                let in_region = score_region(image, gt.clone(), region.clone(), lpips);
+                tally.add_disoccluded(&samples, &in_region);
+            };
+            score(&mut nvs, pred.clone());
+            score(&mut copy, batch.source_image.clone());
             if let Some(g) = out.gaussians {
-                gs.add_batch(
-                    &samples,
-                    &score_images(g.image.clamp(0.0, 1.0), gt.clone(), lpips),
-                );
+                score(&mut gs, g.image.clamp(0.0, 1.0));
             }
             let pred_host = HostImages::from_tensor(pred);
             let gt_host = HostImages::from_tensor(gt);
@@ -266,6 +277,7 @@ pub fn evaluate(
             fps,
             subjects: nvs.subjects,
             per_angle: nvs.per_angle,
+            disoccluded: nvs.disoccluded,
             resolution,
             views_per_subject: views.len(),
             copy_source: copy.finish(),
@@ -273,6 +285,23 @@ pub fn evaluate(
         },
         grids,
     ))
+}
+
+/// The disoccluded region of each sample's (first) target view, `[B, 1, H, W]` on `device`.
+fn disoccluded_regions(samples: &[Sample], device: &Device) -> Tensor<4> {
+    let target = &samples[0].targets[0];
+    let (w, h) = (target.mask.width() as usize, target.mask.height() as usize);
+    let values: Vec<f32> = samples
+        .iter()
+        .flat_map(|s| {
+            let t = &s.targets[0];
+            disoccluded_region(&s.points, &s.source.mask, &t.camera, &t.mask).into_raw()
+        })
+        .collect();
+    Tensor::from_data(
+        burn::tensor::TensorData::new(values, [samples.len(), 1, h, w]),
+        device,
+    )
 }
 
 /// Forward passes per second of `model` on `pair` (one pair): two warm-up passes, then `runs`

@@ -129,6 +129,25 @@ fn means_table(e: &Evaluation) -> ScoreTable {
     table
 }
 
+/// The means in the disoccluded region of the model, its 3DGS head (when it has one) and the
+/// copy of the source view; `None` when they were not measured.
+fn disoccluded_table(e: &Evaluation) -> Option<ScoreTable> {
+    let mut table = ScoreTable::new("prediction (disoccluded region)");
+    table.row(
+        "model (NVS decoder I_t)",
+        &[],
+        &e.disoccluded?.scores(),
+        &[],
+    );
+    if let Some(gs) = e.gs.as_ref().and_then(|g| g.disoccluded) {
+        table.row("model's 3DGS head (I_gs)", &[], &gs.scores(), &[]);
+    }
+    if let Some(copy) = e.copy_source.disoccluded {
+        table.row("copy source (view 0)", &[], &copy.scores(), &[]);
+    }
+    Some(table)
+}
+
 /// A per-subject or per-angle table, its rows named in a column titled `name`: the number of
 /// views and the model's three scores, then PSNR and LPIPS of each of `others`.
 fn breakdown_table(name: &str, others: &[(&str, &MethodScores)]) -> ScoreTable {
@@ -203,6 +222,18 @@ pub fn markdown_report(
         e.ssim - c.ssim,
         e.lpips - c.lpips
     );
+    if let Some(table) = disoccluded_table(e) {
+        let _ = writeln!(
+            out,
+            "## In the disoccluded region\n\nThe same scores on each target view's foreground \
+             that the source view does not see (the source's visible surface reprojected into \
+             the target; views without such pixels left out): there a warp of the source has \
+             nothing to copy. LPIPS there is that of the prediction pasted into the ground truth \
+             on the region.\n"
+        );
+        out.push_str(&table.to_markdown());
+        out.push('\n');
+    }
     let others = other_rows(e);
     let _ = writeln!(out, "## Per subject\n");
     let mut table = breakdown_table("subject", &others);

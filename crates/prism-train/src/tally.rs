@@ -64,6 +64,30 @@ impl PerAngle {
     }
 }
 
+/// The means of the scores in the disoccluded region (the target's foreground that the source
+/// view does not see, see `prism_data::disoccluded_region`), averaged like the overall scores;
+/// views without such pixels, and NaN scores, are left out of the means.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct DisoccludedScores {
+    /// PSNR in dB in the region.
+    pub psnr_disoccluded: f64,
+    /// SSIM of the windows centred in the region.
+    pub ssim_disoccluded: f64,
+    /// LPIPS of the prediction pasted into the ground truth on the region.
+    pub lpips_disoccluded: f64,
+}
+
+impl DisoccludedScores {
+    /// The three scores as [`ImageScores`].
+    pub fn scores(&self) -> ImageScores {
+        ImageScores {
+            psnr: self.psnr_disoccluded,
+            ssim: self.ssim_disoccluded,
+            lpips: self.lpips_disoccluded,
+        }
+    }
+}
+
 /// The scores of one way of predicting the target views (the model, its 3DGS head's render,
 /// or the copy of the source view) on a set of views.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -78,6 +102,10 @@ pub struct MethodScores {
     pub subjects: BTreeMap<String, MeanScores>,
     /// The scores by view angle.
     pub per_angle: PerAngle,
+    /// The scores in the disoccluded region, when measured (`prism evaluate`; absent from the
+    /// JSON otherwise).
+    #[serde(flatten)]
+    pub disoccluded: Option<DisoccludedScores>,
 }
 
 impl MethodScores {
@@ -103,6 +131,8 @@ struct ViewScore {
 pub struct Tally {
     subjects: BTreeMap<String, Vec<ImageScores>>,
     views: Vec<ViewScore>,
+    /// Each subject's scores in the disoccluded region.
+    disoccluded: BTreeMap<String, Vec<ImageScores>>,
 }
 
 impl Tally {
@@ -124,6 +154,18 @@ impl Tally {
         }
     }
 
+    /// Adds the scores of a batch's views in their disoccluded regions, as
+    /// [`Tally::add_batch`].
+    pub fn add_disoccluded(&mut self, samples: &[Sample], scores: &[ImageScores]) {
+        assert_eq!(samples.len(), scores.len(), "one score per sample");
+        for (sample, &scores) in samples.iter().zip(scores) {
+            self.disoccluded
+                .entry(sample.subject.clone())
+                .or_default()
+                .push(scores);
+        }
+    }
+
     /// Each subject's views averaged, then the subjects; the views pooled by angle.
     pub fn finish(self) -> MethodScores {
         let subjects: BTreeMap<String, MeanScores> = self
@@ -133,6 +175,19 @@ impl Tally {
             .collect();
         let means: Vec<ImageScores> = subjects.values().map(|m| m.mean).collect();
         let ImageScores { psnr, ssim, lpips } = ImageScores::mean(&means);
+        let disoccluded = (!self.disoccluded.is_empty()).then(|| {
+            let subjects: Vec<ImageScores> = self
+                .disoccluded
+                .values()
+                .map(|v| measured_mean(v))
+                .collect();
+            let ImageScores { psnr, ssim, lpips } = measured_mean(&subjects);
+            DisoccludedScores {
+                psnr_disoccluded: psnr,
+                ssim_disoccluded: ssim,
+                lpips_disoccluded: lpips,
+            }
+        });
         MethodScores {
             psnr,
             ssim,
@@ -142,7 +197,21 @@ impl Tally {
                 yaw: angle_bins(&self.views, |v| v.yaw),
                 pitch: angle_bins(&self.views, |v| v.pitch),
             },
+            disoccluded,
         }
+    }
+}
+
+/// The mean of each metric over the `scores` that measured it (not NaN); NaN when none did.
+fn measured_mean(scores: &[ImageScores]) -> ImageScores {
+    let mean = |f: fn(&ImageScores) -> f64| {
+        let values: Vec<f64> = scores.iter().map(f).filter(|v| !v.is_nan()).collect();
+        values.iter().sum::<f64>() / values.len() as f64
+    };
+    ImageScores {
+        psnr: mean(|s| s.psnr),
+        ssim: mean(|s| s.ssim),
+        lpips: mean(|s| s.lpips),
     }
 }
 
@@ -198,6 +267,14 @@ mod tests {
         let bounds: Vec<_> = pitch.iter().map(|b| (b.from_deg, b.scores.views)).collect();
         assert_eq!(bounds, vec![(0.0, 1), (10.0, 1), (20.0, 2)]);
         assert_eq!(pitch[2].scores.mean.psnr, 15.0);
+    }
+
+    #[test]
+    fn disoccluded_means_leave_out_what_was_not_measured() {
+        let nan = f64::NAN;
+        let m = measured_mean(&[scores(10.0, nan, 0.2), scores(20.0, 0.7, nan)]);
+        assert_eq!((m.psnr, m.ssim, m.lpips), (15.0, 0.7, 0.2));
+        assert!(measured_mean(&[scores(nan, nan, nan)]).psnr.is_nan());
     }
 
     #[test]
