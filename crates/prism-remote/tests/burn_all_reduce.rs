@@ -10,39 +10,13 @@
 //! "Training on several machines"). When a Burn release lifts the limit, this test fails:
 //! then the trainer should switch to `all_reduce`.
 
+mod common;
+
 use std::panic::{AssertUnwindSafe, catch_unwind};
-use std::sync::mpsc;
-use std::time::Duration;
 
+use burn::tensor::Tensor;
 use burn::tensor::distributed::{ReduceOperation, all_reduce};
-use burn::tensor::{Device, Tensor};
-use prism_remote::{DeviceList, Fingerprint, ServeOptions, TransportKind, connect, serve};
-
-fn served_device() -> Device {
-    let (send, receive) = mpsc::channel();
-    let options = ServeOptions {
-        listen: "127.0.0.1:0".parse().unwrap(),
-        transport: TransportKind::WebSocket,
-        token: "t".into(),
-        devices: vec![Device::flex()],
-        fingerprint: Fingerprint::this_build(None),
-        data: None,
-        identity: None,
-        public_relays: false,
-    };
-    std::thread::spawn(move || serve(options, move |entry| send.send(entry.into()).unwrap()));
-    let entry: String = receive.recv_timeout(Duration::from_secs(30)).unwrap();
-    let list: DeviceList = entry.parse().unwrap();
-    connect(
-        &list,
-        &Device::flex(),
-        Some("t"),
-        &Fingerprint::this_build(None),
-    )
-    .unwrap()
-    .remove(0)
-    .device
-}
+use common::served_device;
 
 #[test]
 fn burn_cannot_all_reduce_across_two_servers() {

@@ -3,41 +3,15 @@
 //! values as on this machine's flex, and the splatting's and the sampling's gradients reach
 //! the served inputs with the same values.
 
-use std::sync::mpsc;
-use std::time::Duration;
+mod common;
 
 use burn::tensor::{Device, Tensor, TensorData};
+use common::served_device;
 use glam::Vec3;
 use prism_core::{Camera, Intrinsics};
-use prism_remote::{DeviceList, Fingerprint, ServeOptions, TransportKind, connect, serve};
 use prism_render::mesh::rasterize_maps;
 use prism_render::splat::{Gaussians, render};
 use prism_render::triplane::sample_triplane;
-
-/// A flex device served over WebSocket by a server in this process, as a trainer sees it.
-fn served_device() -> Device {
-    let (send, receive) = mpsc::channel();
-    let options = ServeOptions {
-        listen: "127.0.0.1:0".parse().unwrap(),
-        transport: TransportKind::WebSocket,
-        token: "t".into(),
-        devices: vec![Device::flex()],
-        fingerprint: Fingerprint::this_build(None),
-        data: None,
-        identity: None,
-        public_relays: false,
-    };
-    std::thread::spawn(move || serve(options, move |entry| send.send(entry.into()).unwrap()));
-    let entry: String = receive.recv_timeout(Duration::from_secs(30)).unwrap();
-    let list: DeviceList = entry.parse().unwrap();
-    let connected = connect(
-        &list,
-        &Device::flex(),
-        Some("t"),
-        &Fingerprint::this_build(None),
-    );
-    connected.unwrap().remove(0).device
-}
 
 /// Deterministic values in about [-1, 1].
 fn values(n: usize, seed: u32) -> Vec<f32> {
