@@ -110,18 +110,26 @@ pub fn read_message(tensor: ServerTensor) -> Result<Vec<u8>, String> {
     Ok(decode(&values))
 }
 
+/// The values of input `index` of `op` on the server (empty when they cannot be read).
+pub fn input_values<B: BackendIr>(
+    handles: &mut HandleContainer<B::Handle>,
+    op: &CustomOpIr,
+    index: usize,
+) -> Vec<f32> {
+    let tensor = handles.get_float_tensor::<B>(&op.inputs[index]);
+    read_sync(B::float_into_data(tensor))
+        .ok()
+        .and_then(|data| data.convert::<f32>().try_into_vec::<f32>().ok())
+        .unwrap_or_default()
+}
+
 /// The message held by input `index` of `op` on the server.
 pub fn input_message<B: BackendIr>(
     handles: &mut HandleContainer<B::Handle>,
     op: &CustomOpIr,
     index: usize,
 ) -> Vec<u8> {
-    let tensor = handles.get_float_tensor::<B>(&op.inputs[index]);
-    let values = read_sync(B::float_into_data(tensor))
-        .ok()
-        .and_then(|data| data.convert::<f32>().try_into_vec::<f32>().ok())
-        .unwrap_or_default();
-    decode(&values)
+    decode(&input_values::<B>(handles, op, index))
 }
 
 /// Registers `values` (of `shape`) on `device` as output `index` of `op`.

@@ -22,7 +22,7 @@ use burn::backend::{Remote, TensorMetadata};
 use burn::server::RemoteServer;
 use burn::tensor::{Device, Shape};
 use glam::Mat4;
-use prism_core::served::{Call, ServerTensor};
+use prism_core::served::{Call, ServerTensor, input_values};
 use prism_core::{Camera, Intrinsics, for_served_backend};
 
 use crate::mesh::op::{FragmentTensors, MeshBackend, MeshCameras, MeshFaces};
@@ -106,19 +106,6 @@ fn input<B: BackendIr>(
     index: usize,
 ) -> FloatTensor<B> {
     handles.get_float_tensor::<B>(&op.inputs[index])
-}
-
-/// The values of input `index` of `op` on the server.
-fn input_values<B: BackendIr>(
-    handles: &mut HandleContainer<B::Handle>,
-    op: &CustomOpIr,
-    index: usize,
-) -> Vec<f32> {
-    let tensor = input::<B>(handles, op, index);
-    burn::tensor::read_sync(B::float_into_data(tensor))
-        .ok()
-        .and_then(|data| data.convert::<f32>().try_into_vec::<f32>().ok())
-        .unwrap_or_default()
 }
 
 /// Registers `tensors` as the outputs of `op`, in order.
