@@ -56,26 +56,20 @@ pub fn training_devices(
     token: Option<&str>,
     fingerprint: &Fingerprint,
 ) -> Result<Vec<TrainingDevice>> {
-    let names = device_names(list);
-    let local = |device: Device| (device, false);
-    let count = list.len();
     let devices: Vec<(Device, bool)> = if list.has_remote() {
         prism_remote::connect(list, &backend.device()?, token, fingerprint)?
             .into_iter()
-            .map(|c| (c.device.autodiff(), c.loads_shares))
+            .map(|c| (c.device, c.loads_shares))
             .collect()
     } else {
-        backend
-            .devices(count)?
-            .into_iter()
-            .map(|d| local(d.autodiff()))
-            .collect()
+        let local = backend.devices(list.len())?;
+        local.into_iter().map(|device| (device, false)).collect()
     };
     Ok(devices
         .into_iter()
-        .zip(names)
+        .zip(device_names(list))
         .map(|((device, loads_shares), name)| TrainingDevice {
-            device,
+            device: device.autodiff(),
             name,
             loads_shares,
         })
@@ -93,7 +87,6 @@ pub fn fingerprint(config: &TrainingConfig) -> Fingerprint {
 pub struct DataParallel {
     devices: Vec<Device>,
     names: Vec<String>,
-    loads_shares: Vec<bool>,
     multi: Option<MultiDevicesTrainStep<Trainee>>,
 }
 
@@ -105,20 +98,13 @@ impl DataParallel {
     pub fn new(devices: Vec<TrainingDevice>) -> Self {
         assert!(!devices.is_empty(), "at least one device");
         let names = devices.iter().map(|d| d.name.clone()).collect();
-        let loads_shares = devices.iter().map(|d| d.loads_shares).collect();
         let devices: Vec<Device> = devices.into_iter().map(|d| d.device).collect();
         let multi = (devices.len() > 1).then(|| MultiDevicesTrainStep::new(&devices));
         Self {
             devices,
             names,
-            loads_shares,
             multi,
         }
-    }
-
-    /// Per device, whether its server loads its share of each batch.
-    pub fn loads_shares(&self) -> &[bool] {
-        &self.loads_shares
     }
 
     /// Device `index`'s failure `why` as an error naming it.
