@@ -54,6 +54,8 @@ enum Command {
     Serve(commands::serve::ServeArgs),
     /// The main job: dataset, teacher, student, evaluation of both, a table of the results.
     Quickstart(commands::quickstart::QuickstartArgs),
+    /// The paper's ablation table: every row trained at one budget, scored on the same views.
+    Ablate(commands::ablate::AblateArgs),
 }
 
 fn main() {
@@ -83,6 +85,7 @@ fn main() {
         Command::Infer(args) => args.run(),
         Command::Quickstart(args) => args.run(),
         Command::Serve(args) => args.run(),
+        Command::Ablate(args) => args.run(),
     };
     if let Err(err) = result {
         eprintln!("error: {err:#}");

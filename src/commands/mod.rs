@@ -1,6 +1,7 @@
 //! One module per subcommand group: each holds its clap arguments and a `run` that calls the
 //! library.
 
+pub mod ablate;
 pub mod args;
 pub mod bench;
 pub mod body;

@@ -6,9 +6,7 @@ use anyhow::Context;
 use clap::Args;
 use prism_core::BackendKind;
 use prism_synth::ensure_synthetic_dataset;
-use prism_train::{
-    QuickstartOptions, QuickstartPlan, distill_student, quickstart, quickstart_table,
-};
+use prism_train::{PipelineOptions, QuickstartPlan, distill_student, quickstart, quickstart_table};
 
 /// Run the whole pipeline on the small config: synthesise the default dataset, train the
 /// teacher, distil the student, evaluate both on the held-out people and print PSNR, SSIM,
@@ -81,7 +79,7 @@ impl QuickstartArgs {
             data.display(),
             data_start.elapsed().as_secs_f64()
         );
-        let options = QuickstartOptions {
+        let options = PipelineOptions {
             out: out.clone(),
             data,
             backend: self.backend,

@@ -32,7 +32,7 @@ pub use image_files::{FolderScores, Scores, load_image, score_files, score_paths
 pub use lpips::{LPIPS_MIN_SIDE, Lpips};
 pub use objective::{
     ImagePair, LossInputs, LossTerms, LossWeights, Objective, OpacityInputs, PointInputs,
-    SmplxInputs, mse_loss,
+    SmplxInputs, holes_loss, mse_loss,
 };
 pub use opacity::{mask_rows, opacity_loss};
 pub use point::{POINT_LOSS_SCALES, PointLoss, point_loss};

@@ -40,6 +40,11 @@ pub struct LossWeights {
     /// mask (not in the paper: 0 there; see [`crate::opacity`]).
     #[config(default = 0.0)]
     pub gs_opacity: f64,
+    /// `l_holes`, weight of `L_holes`, the NVS decoder's squared error averaged over the holes
+    /// of `I_gs` only: the target's foreground where the 3DGS render's coverage is low, where
+    /// the decoder has to synthesise (not in the paper: 0 there; see [`holes_loss`]).
+    #[config(default = 0.0)]
+    pub nvs_holes: f64,
 }
 
 /// Inputs of `L_opacity` (see [`opacity_loss`]).
@@ -100,6 +105,8 @@ pub struct LossInputs {
     pub smplx: Option<SmplxInputs>,
     /// Student and teacher hidden states.
     pub distill: Option<DistillInputs>,
+    /// Per-pixel weights of `L_holes`, `[B, 1, H, W]` in [0, 1] (constants).
+    pub nvs_holes: Option<Tensor<4>>,
 }
 
 impl LossInputs {
@@ -138,6 +145,12 @@ impl LossInputs {
         self
     }
 
+    /// With the weights of the holes of `I_gs` for `L_holes` (see [`holes_loss`]).
+    pub fn with_nvs_holes(mut self, weights: Tensor<4>) -> Self {
+        self.nvs_holes = Some(weights);
+        self
+    }
+
     /// With student and teacher hidden states of the distilled layers.
     pub fn with_distill(mut self, student: Vec<Tensor<3>>, teacher: Vec<Tensor<3>>) -> Self {
         self.distill = Some(DistillInputs { student, teacher });
@@ -147,7 +160,7 @@ impl LossInputs {
 
 /// The value of every computed term, unweighted, plus the weighted `total`, each `[1]`.
 ///
-/// Names: `nvs_mse`, `nvs_lpips`, `gs_mse`, `gs_lpips`, `gs_opacity`, `pts`, `smplx`, `distill`
+/// Names: `nvs_holes`, `nvs_mse`, `nvs_lpips`, `gs_mse`, `gs_lpips`, `gs_opacity`, `pts`, `smplx`, `distill`
 /// (in this order, those computed only) and `total`.
 #[derive(Clone, Debug)]
 pub struct LossTerms {
@@ -239,6 +252,13 @@ impl Objective {
             });
         };
 
+        if let (Some(pair), Some(weights)) = (&inputs.nvs, inputs.nvs_holes)
+            && w.nvs_holes != 0.0
+        {
+            let value = holes_loss(pair.pred.clone(), pair.gt.clone(), weights);
+            add(w.nvs_holes, &value);
+            terms.push(("nvs_holes", value));
+        }
         let images = [
             ("nvs_mse", "nvs_lpips", w.nvs, inputs.nvs),
             ("gs_mse", "gs_lpips", w.gs, inputs.gs),
@@ -286,6 +306,15 @@ impl Objective {
         let total = total.ok_or(LossError::NoTerms)?;
         Ok(LossTerms { total, terms })
     }
+}
+
+/// `L_holes`: the squared error of `pred` against `gt` (`[B, 3, H, W]`) averaged with the
+/// per-pixel `weights` (`[B, 1, H, W]`), `sum(w (pred - gt)^2) / (3 sum(w) + 1)`, `[1]`: an
+/// image whose holes are few still has its error there count in full, and none gives 0.
+pub fn holes_loss(pred: Tensor<4>, gt: Tensor<4>, weights: Tensor<4>) -> Tensor<1> {
+    let d = pred.sub(gt);
+    let weighted = d.clone().mul(d).mul(weights.clone()).sum();
+    weighted.div(weights.sum().mul_scalar(3.0).add_scalar(1.0))
 }
 
 /// Mean squared error over all elements, `[1]`.

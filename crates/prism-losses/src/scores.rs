@@ -4,21 +4,29 @@
 //! score through [`score_images`], so their numbers agree.
 
 use burn::tensor::Tensor;
-use serde::Serialize;
+use serde::{Deserialize, Deserializer, Serialize};
 
 use crate::{LPIPS_MIN_SIDE, Lpips, psnr, ssim};
 
 /// PSNR (dB), SSIM and LPIPS of one image against its ground truth, or their means over
-/// several images.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+/// several images. Read back from JSON, a `null` score is NaN.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ImageScores {
     /// PSNR in dB (`+inf` for identical images, written `null` in JSON).
+    #[serde(deserialize_with = "number_or_nan")]
     pub psnr: f64,
     /// SSIM (scikit-image's Gaussian variant).
+    #[serde(deserialize_with = "number_or_nan")]
     pub ssim: f64,
     /// LPIPS v0.1 AlexNet (NaN, `null` in JSON, when not measured: no LPIPS network, or images
     /// smaller than its [`LPIPS_MIN_SIDE`]).
+    #[serde(deserialize_with = "number_or_nan")]
     pub lpips: f64,
+}
+
+/// A JSON number, or NaN for the `null` that JSON writes for a non-finite score.
+fn number_or_nan<'de, D: Deserializer<'de>>(deserializer: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(deserializer)?.unwrap_or(f64::NAN))
 }
 
 impl ImageScores {

@@ -269,10 +269,10 @@ fn main() {
         let _ = points.dpt.forward(&taps, grid, res, res).into_data();
     });
     let whole = time(args.iters, || {
-        let out = points.forward(&taps, &x.source, &x.views, grid, res, res);
+        let out = points.forward(&taps, &x.image, &x.source, &x.views, grid, res, res);
         let _ = out.features.into_data();
     });
-    let out = points.forward(&taps, &x.source, &x.views, grid, res, res);
+    let out = points.forward(&taps, &x.image, &x.source, &x.views, grid, res, res);
     let splat = time(args.iters, || {
         let r = prism_render::splat::render(&out.gaussians, &x.views.target).unwrap();
         let _ = r.features.into_data();

@@ -193,6 +193,10 @@ pub struct PrismConfig {
     /// Learned feature channels carried by each point (`F_pts` has 2 more: coverage and depth).
     #[config(default = 8)]
     pub point_features: usize,
+    /// The points also carry their source pixel's colour into `F_pts` (3 more channels): stage
+    /// III sees the source warped into the target view at the point branch's depths.
+    #[config(default = false)]
+    pub point_colours: bool,
     /// Distance (metres) from the source camera at which the point branch and the 3DGS head
     /// place their points at initialisation (the protocol's orbit radius, 2 m).
     #[config(default = 2.0)]
@@ -480,6 +484,7 @@ triplane_resolution = 32
 triplane_channels = 32
 point_width = 32
 point_features = 8
+point_colours = false
 depth_prior = 2.0
 gate_init = 1.0
 gs_colour = "regressed"

@@ -80,6 +80,7 @@ impl PrismConfig {
                 self.depth_prior,
             )
             .with_init_std(self.init_std)
+            .with_colours(self.point_colours)
             .init(device)
         });
         Ok(Prism {
@@ -376,6 +377,7 @@ impl Prism {
             let taps: Vec<Tensor<3>> = tapped.iter().map(source_of).collect();
             branch.forward(
                 &taps,
+                &source_image,
                 &source_rays,
                 views.expect("checked"),
                 grid,

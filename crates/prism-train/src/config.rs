@@ -150,6 +150,7 @@ impl TrainingConfig {
             ("losses.lpips", l.lpips),
             ("losses.confidence_alpha", l.confidence_alpha),
             ("losses.gs_opacity", l.gs_opacity),
+            ("losses.nvs_holes", l.nvs_holes),
         ] {
             if !(value.is_finite() && value >= 0.0) {
                 return fail(field, format!("{value} is not a non-negative number"));

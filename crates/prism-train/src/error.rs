@@ -104,10 +104,10 @@ pub enum TrainError {
         /// Why.
         message: String,
     },
-    /// A training worker failed on one of the devices.
     /// A device of `--devices` cannot be used.
     #[error(transparent)]
     Device(#[from] prism_remote::ConnectError),
+    /// A training worker failed on one of the devices.
     #[error("training step failed: {0}")]
     Worker(String),
 }

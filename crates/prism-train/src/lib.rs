@@ -18,8 +18,11 @@
 //!   [`report`]) and inference from a photo ([`infer()`]), both through [`predict`]; images in
 //!   [`images`]. Validation and evaluation score views with `prism_losses::score_images` and
 //!   average them per subject, then over the subjects, with a [`Tally`].
+//! - Ablations ([`ablate()`]): the paper's ablation rows ([`AblationRow`]) trained at one budget
+//!   and scored on the same views, as a table and a bar chart.
 //! - Training curves: [`plot_run`] draws a run's `metrics.jsonl` into its [`PLOT_FILE`].
 
+pub mod ablate;
 pub mod cadence;
 pub mod checkpoint;
 pub mod clip;
@@ -48,6 +51,9 @@ pub mod trainer;
 pub mod training_step;
 pub mod validate;
 
+pub use ablate::{
+    Ablation, AblationFiles, AblationPlan, AblationRow, RowResult, ablate, ablation_markdown,
+};
 pub use cadence::{Cadence, SAMPLES_DIR};
 pub use checkpoint::{
     CHECKPOINTS_DIR, Checkpoint, CheckpointContents, CheckpointState, checkpoint_dir,
@@ -73,7 +79,7 @@ pub use parallel::{DataParallel, TrainingDevice, fingerprint, training_devices};
 pub use plot::{PLOT_FILE, PLOT_SIZE, TrainingCurves, plot_metrics, plot_run};
 pub use predict::{Pairs, forward_pairs, inference_model, synthesise};
 pub use quickstart::{
-    QuickstartModel, QuickstartOptions, QuickstartPlan, QuickstartReport, StudentJob,
+    PipelineOptions, QuickstartModel, QuickstartPlan, QuickstartReport, StudentJob,
     compress_schedule, quickstart, quickstart_table,
 };
 pub use report::{EvaluationFiles, evaluation_json, markdown_report, write_evaluation};

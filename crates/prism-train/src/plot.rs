@@ -35,7 +35,7 @@ pub const PLOT_SIZE: (u32, u32) = (1280, 880);
 pub const MAX_POINTS: usize = 1000;
 
 /// The font family every text of the plot uses (registered once with the embedded font).
-const FONT: &str = "sans-serif";
+pub(crate) const FONT: &str = "sans-serif";
 /// The keys of a step line that are not loss terms.
 const NOT_TERMS: [&str; 5] = ["step", "lr", "lr_heads", "grad_norm", "seconds"];
 /// Colours of the loss terms after the total (Tableau 10).
@@ -199,7 +199,7 @@ pub fn plot_run(run: &Path) -> Result<PathBuf> {
 }
 
 /// Registers the embedded font as the plot's font family (once per process).
-fn register_font() {
+pub(crate) fn register_font() {
     static ONCE: Once = Once::new();
     ONCE.call_once(|| {
         if plotters::style::register_font(

@@ -87,10 +87,10 @@ pub fn compress_schedule(config: &mut TrainingConfig, steps: usize) {
 /// `options.out` (`options.steps` set). `prism distill-student`'s library call.
 pub type StudentJob<'a> = &'a dyn Fn(&TrainingConfig, &Path, &RunOptions) -> Result<RunSummary>;
 
-/// How a quickstart runs.
+/// How a pipeline of runs (the quick start, an ablation) trains and evaluates.
 #[derive(Clone, Debug)]
-pub struct QuickstartOptions {
-    /// Folder of the runs and evaluations (`teacher/`, `student/`, each with `evaluation/`).
+pub struct PipelineOptions {
+    /// Folder of the runs and evaluations (one folder per run, each with `evaluation/`).
     pub out: PathBuf,
     /// The dataset trained and evaluated on.
     pub data: PathBuf,
@@ -138,7 +138,7 @@ pub struct QuickstartReport {
 /// Any error of the dataset, training or evaluation.
 pub fn quickstart(
     plan: &QuickstartPlan,
-    options: &QuickstartOptions,
+    options: &PipelineOptions,
     student_job: StudentJob<'_>,
 ) -> Result<QuickstartReport> {
     let start = Instant::now();

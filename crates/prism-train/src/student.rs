@@ -133,14 +133,19 @@ impl Task for StudentTask {
         let teacher = Checkpoint::read(&self.teacher)?
             .load_model(&device.clone().inner())?
             .valid();
-        let layers = config
-            .distill
-            .layer_indices(config.model.num_blocks())
-            .map_err(|e| TrainError::InvalidConfig {
-                path: PathBuf::from("config"),
-                field: "distill.layers".into(),
-                message: e.to_string(),
-            })?;
+        // Without L_distill (the "no distillation" ablation) the teacher is not run.
+        let layers = if config.losses.distill == 0.0 {
+            Vec::new()
+        } else {
+            config
+                .distill
+                .layer_indices(config.model.num_blocks())
+                .map_err(|e| TrainError::InvalidConfig {
+                    path: PathBuf::from("config"),
+                    field: "distill.layers".into(),
+                    message: e.to_string(),
+                })?
+        };
         Ok(Arc::new(StudentLoss {
             objective,
             teacher,
@@ -181,6 +186,7 @@ pub struct StudentLoss {
     objective: TeacherLoss,
     /// The frozen teacher, an inference model on this device's inner (non-autodiff) backend.
     teacher: Prism,
+    /// The distillation layers `S`; empty when `L_distill` is off (the teacher is not run).
     layers: Vec<usize>,
     background: [f32; 3],
 }
@@ -202,12 +208,13 @@ impl StudentLoss {
 impl StepLoss for StudentLoss {
     fn loss(&self, model: &Prism, batch: &PrismBatch, _step: usize) -> LossTerms {
         let out = self.objective.forward(model, batch, &self.layers);
+        let inputs = self.objective.inputs(model, batch, &out);
+        if self.layers.is_empty() {
+            return self.objective.terms(inputs);
+        }
         let teacher = self.teacher_hidden(batch);
-        let inputs = self
-            .objective
-            .inputs(model, batch, &out)
-            .with_distill(out.hidden.clone(), teacher);
-        self.objective.terms(inputs)
+        self.objective
+            .terms(inputs.with_distill(out.hidden.clone(), teacher))
     }
 }
 

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use prism_core::BackendKind;
 use prism_train::{
-    QuickstartOptions, QuickstartPlan, RunOptions, TeacherTask, TrainingConfig, quickstart,
+    PipelineOptions, QuickstartPlan, RunOptions, TeacherTask, TrainingConfig, quickstart,
     quickstart_table, train,
 };
 
@@ -28,7 +28,7 @@ fn quickstart_trains_evaluates_both_models_and_tabulates() {
     plan.student_steps = 2;
     plan.eval_views = 4;
     let data = prism_synth::ensure_synthetic_dataset(&plan.config.data, false).unwrap();
-    let options = QuickstartOptions {
+    let options = PipelineOptions {
         out: root.join("out"),
         data,
         backend: BackendKind::Ndarray,

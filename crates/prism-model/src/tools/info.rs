@@ -50,9 +50,10 @@ pub struct ParameterCounts {
     pub per_block: usize,
 }
 
-/// Channels of `F_pts` for a config: the learned point features plus coverage and depth.
+/// Channels of `F_pts` for a config: the learned point features plus coverage and depth, and
+/// the colour with `point_colours`.
 fn point_map_channels(config: &PrismConfig) -> usize {
-    config.point_features + 2
+    config.point_features + 2 + if config.point_colours { 3 } else { 0 }
 }
 
 impl ParameterCounts {

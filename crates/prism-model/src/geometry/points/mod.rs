@@ -15,7 +15,9 @@
 //! pixel at that distance, `f` the source focal length in pixels), rendered into the target
 //! camera with [`prism_render::splat::render`]. `F_pts = [features, alpha, alpha (z - depth_prior)]`
 //! (`F + 2` channels: the composited features, the coverage and the depth offset of the
-//! visible points in the target camera).
+//! visible points in the target camera). With `colours`, each point also carries its source
+//! pixel's colour, so `F_pts` shows stage III the source warped into the target view at the
+//! branch's depths (`F + 5` channels).
 
 pub(crate) mod dpt;
 
@@ -50,6 +52,9 @@ pub(crate) struct PointBranchConfig {
     /// Standard deviation of the normal initialisation of the linear layers.
     #[config(default = 0.02)]
     pub init_std: f64,
+    /// The points also carry their source pixel's colour into `F_pts`.
+    #[config(default = false)]
+    pub colours: bool,
 }
 
 impl PointBranchConfig {
@@ -68,6 +73,7 @@ impl PointBranchConfig {
             taps: self.taps.clone(),
             features: self.features,
             depth_prior: self.depth_prior as f32,
+            colours: self.colours,
         }
     }
 }
@@ -83,6 +89,8 @@ pub struct PointBranch {
     features: usize,
     #[module(skip)]
     depth_prior: f32,
+    #[module(skip)]
+    colours: bool,
 }
 
 /// What the point branch predicts for a batch of `B` pairs.
@@ -95,9 +103,11 @@ pub struct PointOutput {
     pub distance: Tensor<4>,
     /// Confidence `C = 1 + exp(x) > 1` per source pixel, `[B, 1, H_s, W_s]`.
     pub confidence: Tensor<4>,
-    /// The points' Gaussians (features: the `F` learned channels).
+    /// The points' Gaussians (features: the `F` learned channels, then the colour with
+    /// `colours`).
     pub gaussians: Gaussians,
-    /// `F_pts`, `[B, F + 2, H, W]` in the target view (see the module docs).
+    /// `F_pts`, `[B, F + 2, H, W]` (`F + 5` with colours) in the target view (see the module
+    /// docs).
     pub features: Tensor<4>,
 }
 
@@ -118,17 +128,20 @@ impl PointBranch {
         &self.taps
     }
 
-    /// Channels of `F_pts`: `F + 2`.
+    /// Channels of `F_pts`: `F + 2`, `F + 5` with colours.
     pub fn feature_channels(&self) -> usize {
-        self.features + 2
+        self.features + 2 + if self.colours { 3 } else { 0 }
     }
 
     /// The branch on the source tokens of its taps (`[B, T_s, d]` each, in the order of
-    /// [`PointBranch::taps`]), the source rays `[B, 6, H_s, W_s]` and the views; `F_pts` at the
-    /// target size `height x width`.
+    /// [`PointBranch::taps`]), the source image `[B, 3, H_s, W_s]` (read with `colours`), the
+    /// source rays `[B, 6, H_s, W_s]` and the views; `F_pts` at the target size
+    /// `height x width`.
+    #[allow(clippy::too_many_arguments)]
     pub fn forward(
         &self,
         taps: &[Tensor<3>],
+        source_image: &Tensor<4>,
         source_rays: &Tensor<4>,
         views: &Views,
         grid: (usize, usize),
@@ -150,7 +163,10 @@ impl PointBranch {
             .exp()
             .add_scalar(1.0);
         let opacity = raw.clone().narrow(1, 2, 1);
-        let features = raw.narrow(1, 3, self.features);
+        let mut features = raw.narrow(1, 3, self.features);
+        if self.colours {
+            features = Tensor::cat(vec![features, source_image.clone()], 1);
+        }
         let sources = views.source_at(ws, hs);
         let points = points_along_rays(source_rays, distance.clone(), &sources);
 
@@ -200,7 +216,8 @@ mod tests {
         let taps: Vec<Tensor<3>> = (0..2)
             .map(|_| Tensor::random([2, 4, 16], Distribution::Normal(0.0, 1.0), &device))
             .collect();
-        let out = branch.forward(&taps, &rays, &views, (2, 2), 16, 16);
+        let image = Tensor::<4>::random([2, 3, 16, 16], Distribution::Uniform(0.0, 1.0), &device);
+        let out = branch.forward(&taps, &image, &rays, &views, (2, 2), 16, 16);
         assert_eq!(out.points.dims(), [2, 3, 16, 16]);
         assert_eq!(out.confidence.dims(), [2, 1, 16, 16]);
         assert_eq!(out.features.dims(), [2, 4 + 2, 16, 16]);
