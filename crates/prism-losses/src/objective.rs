@@ -322,3 +322,45 @@ pub fn mse_loss(pred: Tensor<4>, gt: Tensor<4>) -> Tensor<1> {
     let d = pred.sub(gt);
     d.clone().mul(d).mean()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::tensor::TensorData;
+    use prism_core::BackendKind;
+
+    #[test]
+    fn holes_loss_is_the_error_averaged_over_the_weighted_pixels() {
+        let device = BackendKind::Ndarray.device().unwrap();
+        // One 2 x 2 image: errors 0.1, 0.2, 0.3, 0.4 (every channel); weights 1, 0.5, 0, 0.
+        let pred: Vec<f32> = (0..12).map(|i| 0.1 * (i % 4 + 1) as f32).collect();
+        let pred = Tensor::<4>::from_data(TensorData::new(pred, [1, 3, 2, 2]), &device);
+        let gt = Tensor::<4>::zeros([1, 3, 2, 2], &device);
+        let w = Tensor::<4>::from_data(
+            TensorData::new(vec![1.0f32, 0.5, 0.0, 0.0], [1, 1, 2, 2]),
+            &device,
+        );
+        let value = holes_loss(pred.clone(), gt.clone(), w.clone()).into_scalar::<f64>();
+        let expected = 3.0 * (0.01 + 0.5 * 0.04) / (3.0 * 1.5 + 1.0);
+        assert!((value - expected).abs() < 1e-7, "{value} vs {expected}");
+        // Without holes the term is 0; the objective computes it only when weighted.
+        let none = holes_loss(pred.clone(), gt.clone(), w.clone().zeros_like());
+        assert_eq!(none.into_scalar::<f64>(), 0.0);
+        let inputs = LossInputs::new().with_nvs(pred, gt).with_nvs_holes(w);
+        let weights = |holes: f64| LossWeights::new().with_lpips(0.0).with_nvs_holes(holes);
+        let off = Objective::new(weights(0.0), None)
+            .unwrap()
+            .forward(inputs.clone())
+            .unwrap();
+        assert!(off.get("nvs_holes").is_none());
+        let on = Objective::new(weights(2.0), None)
+            .unwrap()
+            .forward(inputs)
+            .unwrap();
+        let term = on.get("nvs_holes").unwrap().clone().into_scalar::<f64>();
+        assert!((term - expected).abs() < 1e-7);
+        let total = on.total.into_scalar::<f64>();
+        let mse = off.total.into_scalar::<f64>();
+        assert!((total - (mse + 2.0 * expected)).abs() < 1e-6, "{total}");
+    }
+}

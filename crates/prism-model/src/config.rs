@@ -227,6 +227,10 @@ pub struct PrismConfig {
     /// `"residual"` (a correction of the 3DGS head's render `I_gs`; needs `gs_head`).
     #[config(default = "NvsOutput::Direct")]
     pub nvs_output: NvsOutput,
+    /// The residual NVS decoder also sees `I_gs`: each target token gets its render patch
+    /// (embedded, then one hidden layer; see `heads/nvs.rs`). Needs `nvs_output = "residual"`.
+    #[config(default = false)]
+    pub nvs_sees_render: bool,
 }
 
 impl PrismConfig {
@@ -335,6 +339,12 @@ impl PrismConfig {
             return fail(
                 "model.gs_depth",
                 "\"points\" takes the point branch's depth: set point_branch = true".into(),
+            );
+        }
+        if self.nvs_sees_render && self.nvs_output != NvsOutput::Residual {
+            return fail(
+                "model.nvs_sees_render",
+                "the decoder sees the render it corrects: set nvs_output = \"residual\"".into(),
             );
         }
         if self.nvs_output == NvsOutput::Residual && !self.gs_head {
@@ -492,6 +502,7 @@ gs_depth = "head"
 gs_scale = 1.0
 gs_keying = false
 nvs_output = "direct"
+nvs_sees_render = false
 
 [distill]
 mode = "progressive"

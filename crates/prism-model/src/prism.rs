@@ -105,6 +105,7 @@ impl PrismConfig {
                 .with_init_std(self.init_std)
                 .with_norm_eps(self.norm_eps)
                 .with_output(self.nvs_output)
+                .with_sees_render(self.nvs_sees_render)
                 .init(device),
             gs_head: self.gs_head.then(|| {
                 GaussianHeadConfig::new(self.width, self.patch_size, self.depth_prior)
@@ -876,8 +877,20 @@ mod tests {
     #[test]
     fn analytic_parameter_counts_match_the_built_models() {
         let device = ndarray();
-        for name in ["tiny", "small"] {
-            let config = config(name);
+        let options = PrismConfig {
+            point_colours: true,
+            nvs_sees_render: true,
+            ..shipped("tiny")
+        };
+        let configs = [
+            ("tiny", config("tiny")),
+            ("small", config("small")),
+            (
+                "tiny with coloured points and a decoder seeing I_gs",
+                options,
+            ),
+        ];
+        for (name, config) in configs {
             let model = config.init(&device);
             let counts = ParameterCounts::of(&config);
             assert_eq!(counts.total, model.num_params(), "{name}");

@@ -11,12 +11,12 @@
 use burn::config::Config;
 use burn::module::Module;
 use burn::nn::{Initializer, LayerNorm, LayerNormConfig, Linear, LinearConfig};
-use burn::tensor::activation::sigmoid;
+use burn::tensor::activation::{gelu, sigmoid};
 use burn::tensor::{Device, Tensor};
 
 use serde::{Deserialize, Serialize};
 
-use crate::tokenizer::patch::unpatchify;
+use crate::tokenizer::patch::{patchify, unpatchify};
 
 /// What the NVS decoder predicts (`nvs_output` in `[model]`; see the module docs).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -45,6 +45,10 @@ pub(crate) struct NvsHeadConfig {
     /// What the decoder predicts.
     #[config(default = "NvsOutput::Direct")]
     pub output: NvsOutput,
+    /// The residual decoder also sees the render: each target token gets its `I_gs` patch
+    /// (see [`RenderInput`]).
+    #[config(default = false)]
+    pub sees_render: bool,
 }
 
 impl NvsHeadConfig {
@@ -65,10 +69,36 @@ impl NvsHeadConfig {
                     NvsOutput::Residual => Initializer::Zeros,
                 })
                 .init(device),
+            render_input: self.sees_render.then(|| {
+                let linear = |inputs: usize| {
+                    LinearConfig::new(inputs, self.width)
+                        .with_initializer(Initializer::Normal {
+                            mean: 0.0,
+                            std: self.init_std,
+                        })
+                        .init(device)
+                };
+                RenderInput {
+                    embed: linear(3 * self.patch_size * self.patch_size),
+                    hidden: linear(self.width),
+                }
+            }),
             patch_size: self.patch_size,
             output: self.output,
         }
     }
+}
+
+/// What lets the residual decoder see the render it corrects: the `I_gs` patch of each target
+/// token, embedded and added to the normalised token, then one hidden layer,
+/// `h = GELU(W_h (LN(y) + W_e patch(I_gs)))`, before `Linear_out`. Without it the correction is
+/// a function of the tokens only, blind to what `I_gs` shows at each pixel.
+#[derive(Module, Debug)]
+pub struct RenderInput {
+    /// `W_e`: a `3 p^2` render patch to the token width.
+    pub embed: Linear,
+    /// `W_h`: the hidden layer.
+    pub hidden: Linear,
 }
 
 /// The NVS decoder: `I_t = unpatchify(sigmoid(Linear_out(LN(y))))` on the target tokens `y`,
@@ -79,6 +109,8 @@ pub struct NvsHead {
     pub norm: LayerNorm,
     /// `Linear_out`: width `d` to `3 p^2` colour values per patch, no bias.
     pub linear: Linear,
+    /// The render's patches as an input of the residual decoder, when configured.
+    pub render_input: Option<RenderInput>,
     patch_size: usize,
     #[module(skip)]
     output: NvsOutput,
@@ -102,7 +134,14 @@ impl NvsHead {
         width: usize,
         render: Option<Tensor<4>>,
     ) -> Tensor<4> {
-        let patches = self.linear.forward(self.norm.forward(target_tokens));
+        let mut tokens = self.norm.forward(target_tokens);
+        if let (Some(input), Some(render)) = (&self.render_input, &render) {
+            let seen = input
+                .embed
+                .forward(patchify(render.clone(), self.patch_size));
+            tokens = gelu(input.hidden.forward(tokens + seen));
+        }
+        let patches = self.linear.forward(tokens);
         match self.output {
             NvsOutput::Direct => unpatchify(sigmoid(patches), 3, height, width, self.patch_size),
             NvsOutput::Residual => {
@@ -118,6 +157,41 @@ mod tests {
     use super::*;
     use crate::test_util::{ndarray, values};
     use burn::tensor::Distribution;
+
+    #[test]
+    fn a_decoder_seeing_the_render_starts_at_it_and_corrects_it_by_what_it_shows() {
+        let device = ndarray().autodiff();
+        device.seed(3);
+        let head = NvsHeadConfig::new(16, 4)
+            .with_output(NvsOutput::Residual)
+            .with_sees_render(true)
+            .init(&device);
+        let tokens = Tensor::<3>::random([1, 4, 16], Distribution::Normal(0.0, 1.0), &device);
+        let render = Tensor::<4>::random([1, 3, 8, 8], Distribution::Uniform(0.2, 0.8), &device);
+        let out = head.forward(tokens.clone(), 8, 8, Some(render.clone()));
+        assert_eq!(values(&out), values(&render));
+        // Every part of the render input gets a gradient once Linear_out has moved.
+        let mut moved = head.clone();
+        moved.linear.weight = moved
+            .linear
+            .weight
+            .map(|w| w.random_like(Distribution::Normal(0.0, 0.1)));
+        let out = moved.forward(tokens.clone(), 8, 8, Some(render.clone()));
+        let grads = out.clone().sub_scalar(0.5).powi_scalar(2).mean().backward();
+        let input = moved.render_input.as_ref().unwrap();
+        for g in [
+            input.embed.weight.val().grad(&grads),
+            input.hidden.weight.val().grad(&grads),
+        ] {
+            assert!(values(&g.unwrap()).iter().any(|&v| v != 0.0));
+        }
+        // The correction depends on the render, not only on the tokens.
+        let other = render.clone().add_scalar(0.1);
+        let shifted = moved.forward(tokens, 8, 8, Some(other.clone()));
+        let a = values(&(out - render));
+        let b = values(&(shifted - other));
+        assert!(a.iter().zip(&b).any(|(x, y)| (x - y).abs() > 1e-4));
+    }
 
     #[test]
     fn residual_decoder_starts_at_the_render_and_learns_a_correction() {

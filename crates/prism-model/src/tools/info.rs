@@ -20,6 +20,7 @@ use crate::config::PrismConfig;
 use crate::geometry::points::dpt::{dpt_taps, reassemble_factors};
 use crate::geometry::smplx::SMPLX_OUTPUTS;
 use crate::heads::gaussian::GAUSSIAN_CHANNELS;
+use crate::heads::nvs::NvsOutput;
 use crate::stages::attention::AttentionKind;
 use crate::tokenizer::{SOURCE_CHANNELS, TARGET_CHANNELS};
 
@@ -65,7 +66,14 @@ impl ParameterCounts {
         let per_block = 2 * d + 4 * d * d + 2 * config.head_dim() + 2 * config.mlp_ratio * d * d;
         let stage_one = config.stage_one_blocks * per_block;
         let stage_three = config.stage_three_blocks * per_block;
-        let nvs_head = d + d * 3 * p2;
+        let sees_render = config.nvs_sees_render && config.nvs_output == NvsOutput::Residual;
+        let nvs_head = d
+            + d * 3 * p2
+            + if sees_render {
+                (3 * p2 + 1) * d + (d + 1) * d
+            } else {
+                0
+            };
         let zero_conv = |channels: usize| (p2 * channels + 1) * d + 1;
         let mut injection = 1;
         if config.smplx_branch {
