@@ -37,9 +37,9 @@ fn ablate(
         &[
             "ablate",
             "--config",
-            &s(config),
+            s(config),
             "--out",
-            &s(out),
+            s(out),
             "--rows",
             rows,
             "--steps",

@@ -9,6 +9,7 @@ use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use prism_losses::ImageScores;
 
+use super::table::Pick;
 use super::{Ablation, RowResult};
 use crate::plot::{FONT, register_font};
 
@@ -28,13 +29,7 @@ const BAR: f64 = 0.36;
 struct Panel {
     title: &'static str,
     axis: &'static str,
-    pick: fn(
-        &RowResult,
-    ) -> (
-        Option<ImageScores>,
-        Option<ImageScores>,
-        Option<ImageScores>,
-    ),
+    pick: Pick,
     value: fn(&ImageScores) -> f64,
 }
 

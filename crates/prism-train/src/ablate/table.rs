@@ -34,7 +34,7 @@ pub fn ablation_markdown(ablation: &Ablation) -> String {
 }
 
 /// The model's, `I_gs`'s and copy-source's scores of a row.
-type Pick = fn(
+pub(super) type Pick = fn(
     &RowResult,
 ) -> (
     Option<ImageScores>,
