@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use super::args::DataArgs;
+use super::args::{DataArgs, JobArgs};
 use anyhow::Context;
 use clap::{Args, Subcommand};
 use prism_core::BackendKind;
@@ -14,8 +14,10 @@ use prism_data::DatasetReader;
 use prism_model::{
     AttentionKind, BenchOptions, BenchRow, MemoryProbe, Precision, bench_forward, load_config,
 };
+use prism_synth::ensure_synthetic_dataset;
 use prism_train::{
-    RunOptions, TeacherTask, TrainingConfig, Validator, load_model, read_metrics, train,
+    PipelineOptions, QuickstartPlan, RunOptions, TeacherTask, TrainingConfig, Validator,
+    budget_curve, budget_markdown, distill_student, load_model, read_metrics, train,
 };
 
 /// Benchmarks; results are printed as a table and optionally written as JSON.
@@ -88,6 +90,57 @@ enum BenchCommand {
     /// with every block Full and every block Linear, at several resolutions: the median after
     /// warm-up, showing how each grows with the number of tokens.
     Model(ModelBenchArgs),
+    /// The quick start at several multiples of its step counts (hours at 16x): PSNR of the NVS
+    /// decoder, its 3DGS render I_gs and copy-source, overall and in the disoccluded region,
+    /// against the budget (OUT/budget.md, OUT/budget.png; finished multiples are kept).
+    Budget(BudgetBenchArgs),
+}
+
+/// Arguments of `prism bench budget`.
+#[derive(Args, Debug)]
+struct BudgetBenchArgs {
+    /// The quick start's --fast plan (tiny config) instead of the standard one (small).
+    #[arg(long)]
+    fast: bool,
+    /// Multiples of the plan's teacher and student steps.
+    #[arg(long, value_name = "M", value_delimiter = ',', default_values = ["1", "4", "16"])]
+    multiples: Vec<usize>,
+    /// Folder of the quick starts and the curve [default: runs/budget-small or
+    /// runs/budget-tiny].
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
+    #[command(flatten)]
+    job: JobArgs,
+}
+
+impl BudgetBenchArgs {
+    fn run(self) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            self.multiples.iter().all(|&m| m > 0),
+            "--multiples must be at least 1"
+        );
+        let plan = if self.fast {
+            QuickstartPlan::fast()?
+        } else {
+            QuickstartPlan::standard()?
+        };
+        let out = self
+            .out
+            .unwrap_or_else(|| PathBuf::from(format!("runs/budget-{}", plan.name)));
+        let progress = !self.job.quiet;
+        let options = PipelineOptions {
+            data: ensure_synthetic_dataset(&plan.config.data, progress)?,
+            out: out.clone(),
+            backend: self.job.backend,
+            lpips_weights: self.job.lpips_weights,
+            progress,
+        };
+        let (points, table) = budget_curve(&plan, &self.multiples, &options, &distill_student)
+            .with_context(|| format!("budget curve in {}", out.display()))?;
+        print!("{}", budget_markdown(&plan, &points));
+        println!("table {}", table.display());
+        Ok(())
+    }
 }
 
 /// Arguments of `prism bench model`.
@@ -136,6 +189,7 @@ impl BenchArgs {
         match self.command {
             Some(BenchCommand::Model(args)) => args.run(),
             Some(BenchCommand::Precision(args)) => args.run(),
+            Some(BenchCommand::Budget(args)) => args.run(),
             None => self.table.run(),
         }
     }

@@ -20,9 +20,11 @@
 //!   average them per subject, then over the subjects, with a [`Tally`].
 //! - Ablations ([`ablate()`]): the paper's ablation rows ([`AblationRow`]) trained at one budget
 //!   and scored on the same views, as a table and a bar chart.
+//! - Budget curve ([`budget_curve`]): the quick start at several multiples of its steps.
 //! - Training curves: [`plot_run`] draws a run's `metrics.jsonl` into its [`PLOT_FILE`].
 
 pub mod ablate;
+pub mod budget;
 pub mod cadence;
 pub mod checkpoint;
 pub mod clip;
@@ -54,6 +56,7 @@ pub mod validate;
 pub use ablate::{
     Ablation, AblationFiles, AblationPlan, AblationRow, RowResult, ablate, ablation_markdown,
 };
+pub use budget::{BudgetPoint, budget_curve, budget_markdown};
 pub use cadence::{Cadence, SAMPLES_DIR};
 pub use checkpoint::{
     CHECKPOINTS_DIR, Checkpoint, CheckpointContents, CheckpointState, checkpoint_dir,

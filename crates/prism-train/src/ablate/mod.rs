@@ -104,7 +104,12 @@ pub struct RowResult {
 
 impl RowResult {
     /// The result of `row` from its evaluation.
-    fn of(row: AblationRow, steps: usize, seconds_per_step: f64, e: &Evaluation) -> Self {
+    pub(crate) fn of(
+        row: AblationRow,
+        steps: usize,
+        seconds_per_step: f64,
+        e: &Evaluation,
+    ) -> Self {
         Self {
             row: row.name().into(),
             label: row.label().into(),
@@ -282,7 +287,7 @@ fn read_row(file: &Path) -> Result<RowResult> {
 }
 
 /// The mean `seconds` of the training steps of the run folder `run`'s `metrics.jsonl`.
-fn mean_step_seconds(run: &Path) -> Result<f64> {
+pub(crate) fn mean_step_seconds(run: &Path) -> Result<f64> {
     let seconds: Vec<f64> = read_metrics(&run.join(METRICS_FILE))?
         .iter()
         .filter_map(|line| line.get("seconds").and_then(Value::as_f64))
