@@ -19,7 +19,7 @@ use serde::{Deserialize, Serialize};
 use crate::ablate::{AblationRow, RowResult, mean_step_seconds};
 use crate::error::{Result, TrainError};
 use crate::images::save_png;
-use crate::plot::{FONT, register_font};
+use crate::plot::{FONT, draw_legend_box, register_font};
 use crate::quickstart::{PipelineOptions, QuickstartModel, QuickstartPlan, StudentJob, quickstart};
 
 /// A finished multiple's result, in its folder.
@@ -299,12 +299,5 @@ fn draw_panel(
             )
             .map_err(|e| e.to_string())?;
     }
-    chart
-        .configure_series_labels()
-        .label_font((FONT, 14))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .position(SeriesLabelPosition::UpperLeft)
-        .draw()
-        .map_err(|e| e.to_string())
+    draw_legend_box(&mut chart, SeriesLabelPosition::UpperLeft)
 }

@@ -14,9 +14,9 @@ use std::path::{Path, PathBuf};
 use std::sync::Once;
 
 use image::RgbImage;
-use plotters::coord::Shift;
 use plotters::coord::ranged1d::ValueFormatter;
 use plotters::coord::types::RangedCoordf64;
+use plotters::coord::{CoordTranslate, Shift};
 use plotters::prelude::*;
 use plotters::style::FontStyle;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
@@ -426,12 +426,21 @@ fn validation_panel(
             .label(format!("copy source (view 0): {b:.4}"))
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
     }
+    draw_legend_box(&mut chart, SeriesLabelPosition::UpperRight)
+}
+
+/// The legend of a chart's labelled series, in a framed, half-transparent box at `position`
+/// (every plot of the crate draws its legends this way).
+pub(crate) fn draw_legend_box<'a, CT: CoordTranslate>(
+    chart: &mut ChartContext<'a, BitMapBackend<'a>, CT>,
+    position: SeriesLabelPosition,
+) -> std::result::Result<(), String> {
     chart
         .configure_series_labels()
         .label_font((FONT, 14))
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)
-        .position(SeriesLabelPosition::UpperRight)
+        .position(position)
         .draw()
         .map_err(|e| e.to_string())
 }

@@ -2,53 +2,18 @@
 //! teacher, student job, both evaluations and the table. The student job here fine-tunes the
 //! teacher's weights with the teacher's objective (`prism distill-student` is the real one).
 
-use std::path::Path;
+mod common;
 
-use prism_core::BackendKind;
-use prism_train::{
-    PipelineOptions, QuickstartPlan, RunOptions, TeacherTask, TrainingConfig, quickstart,
-    quickstart_table, train,
-};
+use common::{fine_tune_student, shrunken_quickstart};
+use prism_train::{quickstart, quickstart_table};
 
 #[test]
 fn quickstart_trains_evaluates_both_models_and_tabulates() {
     let root = std::env::temp_dir().join(format!("prism-quickstart-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&root);
-    // SAFETY: the only test of this binary; set before anything reads it.
-    unsafe { std::env::set_var(prism_synth::CACHE_ENV, root.join("cache")) };
-    let mut plan = QuickstartPlan::fast().unwrap();
-    plan.config.model.resolution = 32;
-    plan.config.losses.lpips = 0.0;
-    plan.config.train.validate_every = 0;
-    plan.config.train.validation_views = 2;
-    plan.config.data.subjects = 3;
-    plan.config.data.resolution = 32;
-    plan.config.data.test_fraction = 0.34;
-    plan.teacher_steps = 3;
-    plan.student_steps = 2;
-    plan.eval_views = 4;
-    let data = prism_synth::ensure_synthetic_dataset(&plan.config.data, false).unwrap();
-    let options = PipelineOptions {
-        out: root.join("out"),
-        data,
-        backend: BackendKind::Ndarray,
-        lpips_weights: None,
-        progress: false,
-    };
-    let student = |config: &TrainingConfig, teacher: &Path, run: &RunOptions| {
-        let run = RunOptions {
-            init: Some(teacher.to_path_buf()),
-            ..run.clone()
-        };
-        train(
-            config,
-            &TeacherTask {
-                lpips_weights: None,
-            },
-            &run,
-        )
-    };
-    let report = quickstart(&plan, &options, &student).unwrap();
+    // SAFETY: the only test of this binary.
+    let (plan, options) = unsafe { shrunken_quickstart(&root, 3, 2, 4) };
+    let report = quickstart(&plan, &options, &fine_tune_student).unwrap();
     assert_eq!((report.teacher.steps, report.student.steps), (3, 2));
     assert_eq!(report.teacher.run, root.join("out/teacher"));
     for model in [&report.teacher, &report.student] {

@@ -11,7 +11,7 @@ use prism_losses::ImageScores;
 
 use super::table::Pick;
 use super::{Ablation, RowResult};
-use crate::plot::{FONT, register_font};
+use crate::plot::{FONT, draw_legend_box, register_font};
 
 /// Width and height of the chart, pixels.
 pub const CHART_SIZE: (u32, u32) = (1280, 1200);
@@ -171,14 +171,7 @@ fn draw_panel(
             .label(format!("copy source (view 0): {b:.3}"))
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
     }
-    chart
-        .configure_series_labels()
-        .label_font((FONT, 14))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .position(SeriesLabelPosition::UpperRight)
-        .draw()
-        .map_err(|e| e.to_string())?;
+    draw_legend_box(&mut chart, SeriesLabelPosition::UpperRight)?;
     // The rows' names under their bars.
     let style = TextStyle::from((FONT, 14).into_font()).pos(Pos::new(HPos::Center, VPos::Top));
     for (i, row) in rows.iter().enumerate() {

@@ -140,3 +140,54 @@ pub fn tiny(edit: impl FnOnce(&mut TrainingConfig)) -> TrainingConfig {
     edit(&mut config);
     config
 }
+
+/// The quick start's `--fast` plan shrunk for tests (32 px, 3 subjects of which 1 held out, no
+/// LPIPS in the loss, no validation during training) with `teacher_steps`, `student_steps` and
+/// `eval_views`, its dataset synthesised into `root/cache` (made this process's cache folder),
+/// and options writing into `root/out` on ndarray.
+///
+/// # Safety
+/// Sets the cache environment variable: call it once per test binary, before anything reads it.
+pub unsafe fn shrunken_quickstart(
+    root: &Path,
+    teacher_steps: usize,
+    student_steps: usize,
+    eval_views: usize,
+) -> (prism_train::QuickstartPlan, prism_train::PipelineOptions) {
+    // SAFETY: as the caller promises.
+    unsafe { std::env::set_var(prism_synth::CACHE_ENV, root.join("cache")) };
+    let mut plan = prism_train::QuickstartPlan::fast().unwrap();
+    plan.config.model.resolution = 32;
+    plan.config.losses.lpips = 0.0;
+    plan.config.train.validate_every = 0;
+    plan.config.train.validation_views = 2;
+    plan.config.data.subjects = 3;
+    plan.config.data.resolution = 32;
+    plan.config.data.test_fraction = 0.34;
+    plan.teacher_steps = teacher_steps;
+    plan.student_steps = student_steps;
+    plan.eval_views = eval_views;
+    let data = prism_synth::ensure_synthetic_dataset(&plan.config.data, false).unwrap();
+    let options = prism_train::PipelineOptions {
+        out: root.join("out"),
+        data,
+        backend: prism_core::BackendKind::Ndarray,
+        lpips_weights: None,
+        progress: false,
+    };
+    (plan, options)
+}
+
+/// A cheap student job for pipeline tests: the teacher's objective, from the teacher's weights
+/// (`prism distill-student` is the real one).
+pub fn fine_tune_student(
+    config: &TrainingConfig,
+    teacher: &Path,
+    run: &prism_train::RunOptions,
+) -> prism_train::error::Result<prism_train::RunSummary> {
+    let run = prism_train::RunOptions {
+        init: Some(teacher.to_path_buf()),
+        ..run.clone()
+    };
+    prism_train::train(config, &prism_train::TeacherTask::default(), &run)
+}
