@@ -126,7 +126,7 @@ fn draw_panel(
     let n = rows.len().max(1) as f64;
     let mut chart = ChartBuilder::on(area)
         .margin(12)
-        .x_label_area_size(30)
+        .x_label_area_size(40)
         .y_label_area_size(70)
         .caption(panel.title, (FONT, 20))
         .build_cartesian_2d(-0.5..n - 0.5, y0..y1)
