@@ -7,23 +7,9 @@ mod common;
 
 use std::path::Path;
 
-use prism_train::{Ablation, TrainingConfig, configs_dir};
+use prism_train::Ablation;
 
-use common::{cache, failure, prism_with_cache, s, scratch, stdout, success};
-
-/// configs/tiny.toml at 32 px (LPIPS's minimum is 31) on 4 synthetic subjects, 1 held out,
-/// without LPIPS in the loss (its backward is slow on ndarray; the evaluation still scores it).
-fn tiny_config() -> TrainingConfig {
-    let mut c = TrainingConfig::load(configs_dir().join("tiny.toml")).unwrap();
-    c.model.resolution = 32;
-    c.losses.lpips = 0.0;
-    c.train.validate_every = 0;
-    c.train.validation_views = 2;
-    c.data.subjects = 4;
-    c.data.resolution = 32;
-    c.data.test_fraction = 0.25;
-    c
-}
+use common::{cache, failure, prism_with_cache, s, scratch, stdout, success, tiny_at_32px};
 
 fn ablate(
     cache: &Path,
@@ -58,7 +44,7 @@ fn read_ablation(out: &Path) -> Ablation {
 
 #[test]
 fn ablate_trains_scores_and_keeps_finished_rows() {
-    let config = tiny_config();
+    let config = tiny_at_32px();
     let cache = cache(&config.data);
     let dir = scratch("ablate");
     let config_path = dir.join("tiny.toml");

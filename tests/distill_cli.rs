@@ -10,11 +10,9 @@ use std::process::Output;
 use prism_core::BackendKind;
 use prism_model::AttentionKind;
 use prism_synth::ensure_synthetic_dataset;
-use prism_train::{
-    Checkpoint, TrainingConfig, configs_dir, kinds_letters, load_model, read_metrics,
-};
+use prism_train::{Checkpoint, TrainingConfig, kinds_letters, load_model, read_metrics};
 
-use common::{prism_with_cache, scratch, stdout, success};
+use common::{prism_with_cache, scratch, stdout, success, tiny_at_32px};
 
 /// configs/tiny.toml (its `[distill]` schedule included) at 32 px without LPIPS in the loss
 /// (LPIPS backward is slow on ndarray; validation still reports it), 4 subjects of 32 px, with
@@ -23,17 +21,10 @@ use common::{prism_with_cache, scratch, stdout, success};
 /// budget the fully linear ablation's `L_distill` is not reliably above the progressive
 /// student's (BENCHMARKS.md, "Distillation"), while `prism quickstart`'s test distils them.
 fn tiny_config() -> TrainingConfig {
-    let mut c = TrainingConfig::load(configs_dir().join("tiny.toml")).unwrap();
+    let mut c = tiny_at_32px();
     c.model = c.model.clone().paper_outputs();
     c.losses.gs_opacity = 0.0;
     c.losses.smplx = 1.0;
-    c.model.resolution = 32;
-    c.losses.lpips = 0.0;
-    c.train.validate_every = 0;
-    c.train.validation_views = 2;
-    c.data.subjects = 4;
-    c.data.resolution = 32;
-    c.data.test_fraction = 0.25;
     c
 }
 

@@ -8,22 +8,15 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
 
-use prism_train::{RunOptions, TeacherTask, TrainingConfig, configs_dir, train};
+use prism_train::{RunOptions, TeacherTask, TrainingConfig, train};
 
-use common::{failure, prism_with_cache, s, scratch, stderr, success};
+use common::{failure, prism_with_cache, s, scratch, stderr, success, tiny_at_32px};
 
-/// configs/tiny.toml at 32 px (LPIPS's minimum is 31) on 4 synthetic subjects, 1 held out.
+/// The tests' tiny config (32 px, 4 subjects) trained 4 steps.
 fn tiny_config() -> TrainingConfig {
-    let mut c = TrainingConfig::load(configs_dir().join("tiny.toml")).unwrap();
-    c.model.resolution = 32;
-    c.losses.lpips = 0.0;
+    let mut c = tiny_at_32px();
     c.train.steps = 4;
     c.train.checkpoint_every = 4;
-    c.train.validate_every = 0;
-    c.train.validation_views = 2;
-    c.data.subjects = 4;
-    c.data.resolution = 32;
-    c.data.test_fraction = 0.25;
     c
 }
 

@@ -104,6 +104,22 @@ pub fn scratch(test: &str) -> PathBuf {
     dir
 }
 
+/// configs/tiny.toml at 32 px (LPIPS's minimum is 31) on 4 synthetic subjects of 32 px, 1 held
+/// out, without LPIPS in the loss (its backward is slow on ndarray; evaluations still score it)
+/// and without validation during training: the end-to-end tests' model and dataset.
+pub fn tiny_at_32px() -> prism_train::TrainingConfig {
+    let path = prism_train::configs_dir().join("tiny.toml");
+    let mut c = prism_train::TrainingConfig::load(path).unwrap();
+    c.model.resolution = 32;
+    c.losses.lpips = 0.0;
+    c.train.validate_every = 0;
+    c.train.validation_views = 2;
+    c.data.subjects = 4;
+    c.data.resolution = 32;
+    c.data.test_fraction = 0.25;
+    c
+}
+
 /// The cache folder of this test process (`$PRISM_CACHE_DIR` for the children it spawns),
 /// holding the synthetic dataset `data` describes, synthesised on the first call (before any
 /// child process needs it); later calls return the same folder.
