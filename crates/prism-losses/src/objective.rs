@@ -160,8 +160,8 @@ impl LossInputs {
 
 /// The value of every computed term, unweighted, plus the weighted `total`, each `[1]`.
 ///
-/// Names: `nvs_holes`, `nvs_mse`, `nvs_lpips`, `gs_mse`, `gs_lpips`, `gs_opacity`, `pts`, `smplx`, `distill`
-/// (in this order, those computed only) and `total`.
+/// Names: `nvs_holes`, `nvs_mse`, `nvs_lpips`, `gs_mse`, `gs_lpips`, `gs_opacity`, `pts`,
+/// `smplx`, `distill` (in this order, those computed only) and `total`.
 #[derive(Clone, Debug)]
 pub struct LossTerms {
     /// `L`, the weighted sum: what to call `backward` on.

@@ -78,10 +78,13 @@ impl TeacherLoss {
         let target = batch.target_image.clone();
         let mut inputs = LossInputs::new().with_nvs(out.image.clone(), target.clone());
         if let Some(gaussians) = &out.gaussians {
-            // The holes of I_gs: the target's foreground its render leaves uncovered.
-            let holes = batch.target_mask.clone() * gaussians.alpha.clone().neg().add_scalar(1.0);
+            if self.objective.weights().nvs_holes != 0.0 {
+                // The holes of I_gs: the target's foreground its render leaves uncovered.
+                let uncovered = gaussians.alpha.clone().neg().add_scalar(1.0);
+                let holes = batch.target_mask.clone() * uncovered;
+                inputs = inputs.with_nvs_holes(holes.detach());
+            }
             inputs = inputs
-                .with_nvs_holes(holes.detach())
                 .with_gs(gaussians.image.clone(), target)
                 .with_gs_opacity(OpacityInputs {
                     logits: gaussians.gaussians.opacity_logits.clone(),
