@@ -16,7 +16,7 @@ use prism_core::files::{write_bytes, write_json};
 use prism_losses::ImageScores;
 use serde::{Deserialize, Serialize};
 
-use crate::ablate::{AblationRow, RowResult, mean_step_seconds};
+use crate::ablate::{AblationRow, RowResult, mean_step_seconds, read_finished};
 use crate::error::{Result, TrainError};
 use crate::images::save_png;
 use crate::plot::{FONT, draw_legend_box, register_font};
@@ -55,16 +55,12 @@ pub fn budget_curve(
     student_job: StudentJob<'_>,
 ) -> Result<(Vec<BudgetPoint>, PathBuf)> {
     let mut points = Vec::new();
-    let mut table = options.out.join(BUDGET_TABLE);
+    let table = options.out.join(BUDGET_TABLE);
     for &multiple in multiples {
         let dir = options.out.join(format!("{multiple}x"));
         let file = dir.join(POINT_FILE);
         let point = if file.is_file() {
-            let text = std::fs::read_to_string(&file).map_err(|e| TrainError::io(&file, e))?;
-            serde_json::from_str(&text).map_err(|e| TrainError::RunFolder {
-                path: file.clone(),
-                message: format!("not a budget point ({e}); remove the folder to run it again"),
-            })?
+            read_finished(&file, "a point of a budget curve")?
         } else {
             let scaled = QuickstartPlan {
                 teacher_steps: plan.teacher_steps * multiple,
@@ -89,13 +85,13 @@ pub fn budget_curve(
             point
         };
         points.push(point);
-        table = write_budget(plan, &points, &options.out)?;
+        write_budget(plan, &points, &options.out)?;
     }
     Ok((points, table))
 }
 
-/// Writes the table and the plot of `points` into `out`; returns the table's path.
-fn write_budget(plan: &QuickstartPlan, points: &[BudgetPoint], out: &Path) -> Result<PathBuf> {
+/// Writes the table and the plot of `points` into `out`.
+fn write_budget(plan: &QuickstartPlan, points: &[BudgetPoint], out: &Path) -> Result<()> {
     let table = out.join(BUDGET_TABLE);
     write_bytes(&table, budget_markdown(plan, points).as_bytes())
         .map_err(|e| TrainError::io(&table, e))?;
@@ -104,8 +100,7 @@ fn write_budget(plan: &QuickstartPlan, points: &[BudgetPoint], out: &Path) -> Re
         path: plot.clone(),
         message,
     })?;
-    save_png(&plot, &image)?;
-    Ok(table)
+    save_png(&plot, &image)
 }
 
 /// The table: per multiple and model, PSNR of NVS, `I_gs` and copy-source, overall and in the

@@ -157,6 +157,17 @@ pub struct AblationFiles {
     pub chart: PathBuf,
 }
 
+impl AblationFiles {
+    /// The files of an ablation in the folder `out`.
+    pub fn in_folder(out: &Path) -> Self {
+        Self {
+            table: out.join(TABLE_FILE),
+            json: out.join(JSON_FILE),
+            chart: out.join(CHART_FILE),
+        }
+    }
+}
+
 /// Trains and evaluates every row of `plan` not finished in `options.out`, and writes the
 /// table, its JSON and its chart there.
 ///
@@ -172,7 +183,7 @@ pub fn ablate(plan: &AblationPlan, options: &PipelineOptions) -> Result<(Ablatio
         views: plan.views,
         rows: Vec::new(),
     };
-    let mut files = write_table(&ablation, &options.out)?;
+    let files = AblationFiles::in_folder(&options.out);
     let teacher = options.out.join(AblationRow::Teacher.name());
     for (i, &row) in plan.rows.iter().enumerate() {
         if options.progress {
@@ -185,7 +196,7 @@ pub fn ablate(plan: &AblationPlan, options: &PipelineOptions) -> Result<(Ablatio
             );
         }
         ablation.rows.push(run_row(row, plan, options, &teacher)?);
-        files = write_table(&ablation, &options.out)?;
+        write_table(&ablation, &files)?;
     }
     Ok((ablation, files))
 }
@@ -277,12 +288,16 @@ fn run_row(
 
 /// A finished row's [`ROW_FILE`].
 fn read_row(file: &Path) -> Result<RowResult> {
+    read_finished(file, "a row of an ablation")
+}
+
+/// The JSON result of a finished part of a long job (an ablation's row, a budget point),
+/// `what` naming it in the error that says to remove its folder to run it again.
+pub(crate) fn read_finished<T: serde::de::DeserializeOwned>(file: &Path, what: &str) -> Result<T> {
     let text = std::fs::read_to_string(file).map_err(|e| TrainError::io(file, e))?;
     serde_json::from_str(&text).map_err(|e| TrainError::RunFolder {
         path: file.to_path_buf(),
-        message: format!(
-            "not a row of an ablation ({e}); remove the row's folder to train it again"
-        ),
+        message: format!("not {what} ({e}); remove its folder to run it again"),
     })
 }
 
@@ -295,13 +310,8 @@ pub(crate) fn mean_step_seconds(run: &Path) -> Result<f64> {
     Ok(seconds.iter().sum::<f64>() / seconds.len().max(1) as f64)
 }
 
-/// Writes the table, its JSON and its chart into `out`.
-fn write_table(ablation: &Ablation, out: &Path) -> Result<AblationFiles> {
-    let files = AblationFiles {
-        table: out.join(TABLE_FILE),
-        json: out.join(JSON_FILE),
-        chart: out.join(CHART_FILE),
-    };
+/// Writes the table, its JSON and its chart into `files`.
+fn write_table(ablation: &Ablation, files: &AblationFiles) -> Result<()> {
     prism_core::files::write_bytes(&files.table, ablation_markdown(ablation).as_bytes())
         .map_err(|e| TrainError::io(&files.table, e))?;
     write_json(&files.json, ablation).map_err(|e| TrainError::io(&files.json, e))?;
@@ -309,6 +319,5 @@ fn write_table(ablation: &Ablation, out: &Path) -> Result<AblationFiles> {
         path: files.chart.clone(),
         message,
     })?;
-    save_png(&files.chart, &chart)?;
-    Ok(files)
+    save_png(&files.chart, &chart)
 }
