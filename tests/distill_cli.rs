@@ -86,10 +86,16 @@ fn distilled_student_stays_near_its_teacher_and_beats_the_fully_linear_ablation(
         args.extend(extra);
         prism(&cache, &args)
     };
-    distill(&student, &["--steps", "6"]);
+    let out = distill(&student, &["--steps", "6"]);
     let first = Checkpoint::read(&latest(Path::new(&student))).unwrap();
     assert_eq!(first.state.step, 6);
     assert_eq!(kinds_letters(&first.attention), "LFFLFF");
+    // The announced schedule is the one this run follows, --steps included.
+    let printed = stdout(&out);
+    assert!(
+        printed.contains("6 steps at lr 1.0e-3, final attention LFFLFF"),
+        "{printed}"
+    );
     let out = distill(&student, &["--resume"]);
     let stdout = stdout(&out);
     assert!(stdout.contains("trained steps 6..24"), "{stdout}");

@@ -41,12 +41,15 @@ impl DistillStudentArgs {
             PathBuf::from("runs").join(format!("student-{}-{mode}", config_name(&self.config)));
         let options = self.run.options(default_out, &config.data)?;
         let blocks = config.model.num_blocks();
+        // The schedule as this run follows it: --steps replaces `[distill] steps`.
+        let mut schedule = config.distill.clone();
+        schedule.steps = self.run.steps.unwrap_or(schedule.steps);
         println!(
             "distilling {} ({mode}): {} steps at lr {:.1e}, final attention {}",
             self.teacher.display(),
-            self.run.steps.unwrap_or(config.distill.steps),
-            config.distill.lr,
-            kinds_letters(&config.distill.final_kinds(blocks)),
+            schedule.steps,
+            schedule.lr,
+            kinds_letters(&schedule.final_kinds(blocks)),
         );
         let summary = distill_student(&config, &self.teacher, &options).with_context(|| {
             format!(
