@@ -130,26 +130,27 @@ impl Task for StudentTask {
             self.lpips_weights.as_deref(),
             device,
         )?;
-        let teacher = Checkpoint::read(&self.teacher)?
-            .load_model(&device.clone().inner())?
-            .valid();
-        // Without L_distill (the "no distillation" ablation) the teacher is not run.
-        let layers = if config.losses.distill == 0.0 {
-            Vec::new()
+        // Without L_distill (the "no distillation" ablation) the teacher is neither loaded nor
+        // run.
+        let teacher = if config.losses.distill == 0.0 {
+            None
         } else {
-            config
+            let layers = config
                 .distill
                 .layer_indices(config.model.num_blocks())
                 .map_err(|e| TrainError::InvalidConfig {
                     path: PathBuf::from("config"),
                     field: "distill.layers".into(),
                     message: e.to_string(),
-                })?
+                })?;
+            let model = Checkpoint::read(&self.teacher)?
+                .load_model(&device.clone().inner())?
+                .valid();
+            Some(FrozenTeacher { model, layers })
         };
         Ok(Arc::new(StudentLoss {
             objective,
             teacher,
-            layers,
             background: data.background,
         }))
     }
@@ -184,20 +185,26 @@ impl Task for StudentTask {
 /// hidden states of the configured layers `S`, the teacher's being constants.
 pub struct StudentLoss {
     objective: TeacherLoss,
-    /// The frozen teacher, an inference model on this device's inner (non-autodiff) backend.
-    teacher: Prism,
-    /// The distillation layers `S`; empty when `L_distill` is off (the teacher is not run).
-    layers: Vec<usize>,
+    /// The frozen teacher and its distillation layers; `None` when `L_distill` is off.
+    teacher: Option<FrozenTeacher>,
     background: [f32; 3],
 }
 
-impl StudentLoss {
-    /// The frozen teacher's hidden states of the distillation layers on `batch`, without
-    /// autodiff (constants for the student's graph).
-    pub fn teacher_hidden(&self, batch: &PrismBatch) -> Vec<Tensor<3>> {
+/// The frozen teacher of [`StudentLoss`].
+struct FrozenTeacher {
+    /// An inference model on this device's inner (non-autodiff) backend.
+    model: Prism,
+    /// The distillation layers `S`.
+    layers: Vec<usize>,
+}
+
+impl FrozenTeacher {
+    /// The hidden states of the distillation layers on `batch`, without autodiff (constants
+    /// for the student's graph).
+    fn hidden(&self, batch: &PrismBatch, background: [f32; 3]) -> Vec<Tensor<3>> {
         let inner = inner_batch(batch);
-        self.teacher
-            .forward_batch(&inner, self.background, &self.layers)
+        self.model
+            .forward_batch(&inner, background, &self.layers)
             .hidden
             .into_iter()
             .map(Tensor::from_inner)
@@ -207,14 +214,17 @@ impl StudentLoss {
 
 impl StepLoss for StudentLoss {
     fn loss(&self, model: &Prism, batch: &PrismBatch, _step: usize) -> LossTerms {
-        let out = self.objective.forward(model, batch, &self.layers);
+        let layers = self.teacher.as_ref().map_or(&[][..], |t| &t.layers);
+        let out = self.objective.forward(model, batch, layers);
         let inputs = self.objective.inputs(model, batch, &out);
-        if self.layers.is_empty() {
-            return self.objective.terms(inputs);
+        match &self.teacher {
+            None => self.objective.terms(inputs),
+            Some(teacher) => {
+                let hidden = teacher.hidden(batch, self.background);
+                self.objective
+                    .terms(inputs.with_distill(out.hidden.clone(), hidden))
+            }
         }
-        let teacher = self.teacher_hidden(batch);
-        self.objective
-            .terms(inputs.with_distill(out.hidden.clone(), teacher))
     }
 }
 
@@ -261,6 +271,29 @@ mod tests {
             );
         }
         assert_eq!(student.train.lr_heads, config.distill.lr);
+    }
+
+    #[test]
+    fn the_frozen_teacher_is_loaded_only_when_l_distill_is_weighted() {
+        let mut config = tiny();
+        config.losses.lpips = 0.0;
+        let device = BackendKind::Ndarray.device().unwrap().autodiff();
+        let data = TaskData {
+            background: [1.0; 3],
+        };
+        let missing = std::env::temp_dir().join("prism-no-such-teacher");
+        let loss = |config: &TrainingConfig| {
+            let task = StudentTask {
+                teacher: missing.clone(),
+                config: config.clone(),
+                lpips_weights: None,
+            };
+            task.step_loss(config, &data, &device).map(|_| ())
+        };
+        let err = loss(&config).unwrap_err().to_string();
+        assert!(err.contains("prism-no-such-teacher"), "{err}");
+        config.losses.distill = 0.0;
+        loss(&config).unwrap();
     }
 
     #[test]
