@@ -12,9 +12,9 @@ use burn::module::{Module, ModuleVisitor, Param, ParamId};
 use burn::tensor::Tensor;
 use prism_core::BackendKind;
 use prism_model::{GsColour, GsDepth, NvsOutput};
-use prism_train::{TrainingConfig, configs_dir, heads_group_with, latest_checkpoint, load_model};
+use prism_train::{heads_group_with, latest_checkpoint, load_model};
 
-use common::{prism_with_cache, scratch, stdout, success};
+use common::{prism_with_cache, scratch, stdout, success, tiny_at_32px};
 
 fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("crates/prism-model/tests/fixtures/lvsm_tiny.pt")
@@ -24,29 +24,22 @@ fn fixture() -> PathBuf {
 /// more than the fixture's 4), the paper's outputs and every geometry part, at 32 px on 4
 /// synthetic subjects; the backbone's learning rate far below the heads'.
 fn config(dir: &Path) -> PathBuf {
-    let mut c = TrainingConfig::load(configs_dir().join("tiny.toml")).unwrap();
+    let mut c = tiny_at_32px();
     let m = &mut c.model;
     (m.width, m.heads, m.patch_size) = (32, 2, 8);
     (m.stage_one_blocks, m.stage_three_blocks) = (2, 4);
-    m.resolution = 32;
     m.gs_colour = GsColour::Regressed;
     m.gs_depth = GsDepth::Head;
     m.gs_scale = 1.0;
     m.gs_keying = false;
     m.nvs_output = NvsOutput::Direct;
     c.distill.group_size = 2;
-    c.losses.lpips = 0.0;
     c.train.steps = 2;
     c.train.warmup_steps = 0;
     c.train.checkpoint_every = 2;
-    c.train.validate_every = 0;
-    c.train.validation_views = 2;
     c.train.lr_backbone = 1e-12;
     c.train.lr_heads = 1e-2;
     c.train.min_lr = 0.0;
-    c.data.subjects = 4;
-    c.data.resolution = 32;
-    c.data.test_fraction = 0.25;
     let path = dir.join("lvsm-tiny.toml");
     std::fs::write(&path, c.to_toml()).unwrap();
     path

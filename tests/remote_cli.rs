@@ -19,7 +19,9 @@ use std::time::{Duration, Instant};
 use prism_core::BackendKind;
 use prism_train::{Checkpoint, TrainingConfig, configs_dir, list_checkpoints, parameter_values};
 
-use common::{copy_dir, failure, output, prism, prism_with_cache, s, scratch, stderr, success};
+use common::{
+    copy_dir, failure, output, prism, prism_with_cache, s, scratch, stderr, success, tiny_at_32px,
+};
 
 /// The cache folder of this test process, holding the tiny synthetic dataset.
 fn cache() -> PathBuf {
@@ -36,21 +38,14 @@ fn dataset_copy(dir: &Path, edit: impl FnOnce(&Path)) -> PathBuf {
     copy
 }
 
-/// configs/tiny.toml at 32 px without LPIPS, `steps` steps of 2 samples, a checkpoint at
-/// every step, on 4 synthetic subjects of 32 px.
+/// The tests' tiny config (32 px, 4 subjects), `steps` steps of 2 samples, a checkpoint at
+/// every step.
 fn tiny_config(steps: usize) -> TrainingConfig {
-    let mut c = TrainingConfig::load(configs_dir().join("tiny.toml")).unwrap();
-    c.model.resolution = 32;
-    c.losses.lpips = 0.0;
+    let mut c = tiny_at_32px();
     c.train.steps = steps;
     c.train.batch_size = 2;
     c.train.checkpoint_every = 1;
     c.train.keep_checkpoints = 2;
-    c.train.validate_every = 0;
-    c.train.validation_views = 2;
-    c.data.subjects = 4;
-    c.data.resolution = 32;
-    c.data.test_fraction = 0.25;
     c
 }
 

@@ -8,31 +8,22 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use prism_core::BackendKind;
-use prism_train::{
-    Checkpoint, TrainingConfig, configs_dir, list_checkpoints, parameter_values, read_metrics,
-};
+use prism_train::{Checkpoint, TrainingConfig, list_checkpoints, parameter_values, read_metrics};
 
-use common::{failure, output, prism_with_cache, scratch, stderr, stdout, success};
+use common::{failure, output, prism_with_cache, scratch, stderr, stdout, success, tiny_at_32px};
 
 /// The cache folder of this test process, holding the tiny synthetic dataset.
 fn cache() -> PathBuf {
     common::cache(&tiny_config(40, 5).data)
 }
 
-/// configs/tiny.toml at 32 px without LPIPS in the loss (LPIPS backward is slow on ndarray;
-/// validation still reports it), on 4 synthetic subjects of 32 px.
+/// The tests' tiny config (32 px, 4 subjects) with `steps` steps and a checkpoint every
+/// `checkpoint_every`.
 fn tiny_config(steps: usize, checkpoint_every: usize) -> TrainingConfig {
-    let mut c = TrainingConfig::load(configs_dir().join("tiny.toml")).unwrap();
-    c.model.resolution = 32;
-    c.losses.lpips = 0.0;
+    let mut c = tiny_at_32px();
     c.train.steps = steps;
     c.train.checkpoint_every = checkpoint_every;
     c.train.keep_checkpoints = 3;
-    c.train.validate_every = 0;
-    c.train.validation_views = 2;
-    c.data.subjects = 4;
-    c.data.resolution = 32;
-    c.data.test_fraction = 0.25;
     c
 }
 
