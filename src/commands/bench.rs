@@ -92,7 +92,8 @@ enum BenchCommand {
     Model(ModelBenchArgs),
     /// The quick start at several multiples of its step counts (hours at 16x): PSNR of the NVS
     /// decoder, its 3DGS render I_gs and copy-source, overall and in the disoccluded region,
-    /// against the budget (OUT/budget.md, OUT/budget.png; finished multiples are kept).
+    /// against the budget (OUT/budget.md, OUT/budget.png; finished multiples are kept, an
+    /// interrupted one continues from its runs' last checkpoints).
     Budget(BudgetBenchArgs),
 }
 

@@ -6,7 +6,9 @@ use anyhow::Context;
 use clap::Args;
 use prism_core::BackendKind;
 use prism_synth::ensure_synthetic_dataset;
-use prism_train::{PipelineOptions, QuickstartPlan, distill_student, quickstart, quickstart_table};
+use prism_train::{
+    PipelineOptions, QuickstartPlan, distill_student, quickstart, quickstart_table, remove_run,
+};
 
 /// Run the whole pipeline on the small config: synthesise the default dataset, train the
 /// teacher, distil the student, evaluate both on the held-out people and print PSNR, SSIM,
@@ -97,6 +99,10 @@ impl QuickstartArgs {
             plan.eval_views,
             out.display()
         );
+        // A rerun trains again (the library's quickstart would keep finished runs).
+        for run in ["teacher", "student"] {
+            remove_run(&out.join(run))?;
+        }
         let report = quickstart(&plan, &options, &distill_student)
             .with_context(|| format!("quickstart into {}", out.display()))?;
         print!("{}", quickstart_table(&report));

@@ -1,7 +1,8 @@
 //! `prism bench budget`: the quick start at several multiples of its step counts (a benchmark
 //! that takes hours at 16x, not a test), to see whether the NVS decoder's gain over its own
 //! 3DGS render `I_gs` grows with the budget. Each multiple is a quick start in its own folder
-//! (`1x/`, `4x/`, ...) with a [`POINT_FILE`] once done (kept on the next run); the table
+//! (`1x/`, `4x/`, ...) with a [`POINT_FILE`] once done (kept on the next run; an unfinished one
+//! continues from its runs' last checkpoints, as [`quickstart`] does); the table
 //! ([`BUDGET_TABLE`]) and a plot of PSNR against the teacher's steps ([`BUDGET_PLOT`]: NVS and
 //! `I_gs` of teacher and student, and copy-source, overall and in the disoccluded region) are
 //! rewritten after each multiple.

@@ -15,8 +15,9 @@ use std::time::Instant;
 use prism_core::BackendKind;
 use prism_losses::{NO_VALUE, ScoreTable};
 
+use crate::checkpoint::list_checkpoints;
 use crate::config::TrainingConfig;
-use crate::error::Result;
+use crate::error::{Result, TrainError};
 use crate::evaluate::{EvaluateOptions, Evaluation, evaluate_checkpoint};
 use crate::report::EvaluationFiles;
 use crate::teacher::TeacherTask;
@@ -112,6 +113,57 @@ pub struct PipelineOptions {
     pub progress: bool,
 }
 
+/// The options of the run of `steps` steps in `dir` that continues what a killed job left
+/// there: `None` when `dir` holds a finished run (a checkpoint at `steps`), a resuming run when
+/// it holds an earlier checkpoint, else a fresh run (the folder cleared of anything written
+/// before a first checkpoint). Long jobs made of runs (an ablation's rows, the quick starts of
+/// a budget curve) train each run once however often they are interrupted.
+///
+/// # Errors
+/// A checkpoint past `steps` (another job's run: it must not be cut short or mixed in), I/O.
+pub(crate) fn continue_run(
+    dir: &Path,
+    steps: usize,
+    options: &PipelineOptions,
+) -> Result<Option<RunOptions>> {
+    let done = list_checkpoints(dir)?.last().map(|&(step, _)| step);
+    match done {
+        Some(done) if done == steps => return Ok(None),
+        Some(done) if done > steps => {
+            return Err(TrainError::RunFolder {
+                path: dir.to_path_buf(),
+                message: format!(
+                    "holds a run of {done} steps, more than the {steps} asked: use another \
+                     --out, or remove the folder to train it again"
+                ),
+            });
+        }
+        Some(done) if options.progress => {
+            eprintln!("continuing {} from step {done}", dir.display());
+        }
+        Some(_) => {}
+        None => remove_run(dir)?,
+    }
+    Ok(Some(RunOptions {
+        steps: Some(steps),
+        resume: done.is_some(),
+        progress: options.progress,
+        lpips_weights: options.lpips_weights.clone(),
+        ..RunOptions::new(dir, &options.data, options.backend)
+    }))
+}
+
+/// Removes the run folder `dir` if there is one.
+///
+/// # Errors
+/// I/O errors other than the folder being absent.
+pub fn remove_run(dir: &Path) -> Result<()> {
+    match std::fs::remove_dir_all(dir) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(TrainError::io(dir, e)),
+        _ => Ok(()),
+    }
+}
+
 /// One trained and evaluated model of the quickstart.
 #[derive(Clone, Debug)]
 pub struct QuickstartModel {
@@ -119,7 +171,8 @@ pub struct QuickstartModel {
     pub run: PathBuf,
     /// Training steps.
     pub steps: usize,
-    /// Wall-clock seconds of the training run.
+    /// Wall-clock seconds this call spent training it (0 for a finished run found in the
+    /// folder and kept).
     pub train_seconds: f64,
     /// The evaluation.
     pub evaluation: Evaluation,
@@ -142,7 +195,10 @@ pub struct QuickstartReport {
 
 /// Runs the quickstart on `options.data`: teacher, student (through `student_job`), both
 /// evaluations.
-/// Runs already complete in `options.out` are trained again from scratch.
+/// A run a killed quickstart left in `options.out` continues from its last checkpoint and a
+/// finished one is kept, so that a long one (the budget curve's 16x) is
+/// never trained twice; the student starts over when its teacher trained in this call.
+/// `prism quickstart` clears its folder first: a rerun there trains again.
 ///
 /// # Errors
 /// Any error of the dataset, training or evaluation.
@@ -157,16 +213,6 @@ pub fn quickstart(
         views: plan.eval_views,
         progress: options.progress,
         ..EvaluateOptions::default()
-    };
-    let run_options = |dir: &Path, steps: usize| {
-        // A fresh run each time: a previous quickstart's folder is replaced.
-        let _ = std::fs::remove_dir_all(dir);
-        RunOptions {
-            steps: Some(steps),
-            progress: options.progress,
-            lpips_weights: options.lpips_weights.clone(),
-            ..RunOptions::new(dir, &data_dir, options.backend)
-        }
     };
     let evaluate_run = |run: &Path, steps: usize, seconds: f64| -> Result<QuickstartModel> {
         let (evaluation, files) = evaluate_checkpoint(
@@ -188,25 +234,28 @@ pub fn quickstart(
 
     let teacher_dir = options.out.join("teacher");
     let t0 = Instant::now();
-    let summary = train(
-        &plan.config,
-        &TeacherTask {
+    let teacher_run = continue_run(&teacher_dir, plan.teacher_steps, options)?;
+    let teacher_trained = teacher_run.is_some();
+    if let Some(run) = teacher_run {
+        let task = TeacherTask {
             lpips_weights: options.lpips_weights.clone(),
-        },
-        &run_options(&teacher_dir, plan.teacher_steps),
-    )?;
-    let teacher = evaluate_run(&teacher_dir, summary.steps, t0.elapsed().as_secs_f64())?;
+        };
+        train(&plan.config, &task, &run)?;
+    }
+    let teacher = evaluate_run(&teacher_dir, plan.teacher_steps, t0.elapsed().as_secs_f64())?;
 
     let student_dir = options.out.join("student");
+    if teacher_trained {
+        // Whatever student is there was distilled from another teacher.
+        remove_run(&student_dir)?;
+    }
     let mut student_config = plan.config.clone();
     compress_schedule(&mut student_config, plan.student_steps);
     let t0 = Instant::now();
-    let summary = student_job(
-        &student_config,
-        &teacher_dir,
-        &run_options(&student_dir, plan.student_steps),
-    )?;
-    let student = evaluate_run(&student_dir, summary.steps, t0.elapsed().as_secs_f64())?;
+    if let Some(run) = continue_run(&student_dir, plan.student_steps, options)? {
+        student_job(&student_config, &teacher_dir, &run)?;
+    }
+    let student = evaluate_run(&student_dir, plan.student_steps, t0.elapsed().as_secs_f64())?;
     Ok(QuickstartReport {
         data_dir,
         teacher,

@@ -1,18 +1,23 @@
 //! The quickstart's orchestration on a shrunken plan (32 px, a few steps, ndarray): dataset,
 //! teacher, student job, both evaluations and the table. The student job here fine-tunes the
 //! teacher's weights with the teacher's objective (`prism distill-student` is the real one).
+//! Then the same quickstart killed at several points and run again: it continues.
 
 mod common;
 
 use common::{fine_tune_student, shrunken_quickstart};
-use prism_train::{quickstart, quickstart_table};
+use std::path::Path;
+
+use prism_train::{list_checkpoints, quickstart, quickstart_table};
 
 #[test]
 fn quickstart_trains_evaluates_both_models_and_tabulates() {
     let root = std::env::temp_dir().join(format!("prism-quickstart-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&root);
     // SAFETY: the only test of this binary.
-    let (plan, options) = unsafe { shrunken_quickstart(&root, 3, 2, 4) };
+    let (mut plan, options) = unsafe { shrunken_quickstart(&root, 3, 2, 4) };
+    // A checkpoint after every step, two kept: a kill can be simulated by removing the last.
+    plan.config.train.checkpoint_every = 1;
     let report = quickstart(&plan, &options, &fine_tune_student).unwrap();
     assert_eq!((report.teacher.steps, report.student.steps), (3, 2));
     assert_eq!(report.teacher.run, root.join("out/teacher"));
@@ -51,5 +56,63 @@ fn quickstart_trains_evaluates_both_models_and_tabulates() {
         "{table}"
     );
     assert!(table.contains("student report: "), "{table}");
+
+    let (teacher, student) = (root.join("out/teacher"), root.join("out/student"));
+    // Run again: both finished runs are kept, not trained again.
+    let (teacher_log, student_log) = (metrics(&teacher), metrics(&student));
+    let again = quickstart(&plan, &options, &fine_tune_student).unwrap();
+    assert_eq!(metrics(&teacher), teacher_log);
+    assert_eq!(metrics(&student), student_log);
+    assert_eq!(
+        again.student.evaluation.psnr,
+        report.student.evaluation.psnr
+    );
+
+    // Killed after the student's first step: the student continues from it, exactly.
+    kill_at_last_but_one(&student);
+    let resumed = quickstart(&plan, &options, &fine_tune_student).unwrap();
+    let log = metrics(&student);
+    assert_eq!(
+        log[0], student_log[0],
+        "the first step is not trained again"
+    );
+    assert_ne!(log[1], student_log[1], "the second step is trained again");
+    assert_eq!(metrics(&teacher), teacher_log);
+    let close = |a: f64, b: f64| (a - b).abs() < 1e-6 * b.abs().max(1.0);
+    let student_psnr = report.student.evaluation.psnr;
+    assert!(close(resumed.student.evaluation.psnr, student_psnr));
+
+    // Killed during the teacher: it continues, and the student starts over from the new teacher.
+    kill_at_last_but_one(&teacher);
+    let resumed = quickstart(&plan, &options, &fine_tune_student).unwrap();
+    let log = metrics(&teacher);
+    assert_eq!(log[..2], teacher_log[..2]);
+    assert_ne!(log[2], teacher_log[2]);
+    assert_ne!(
+        metrics(&student)[0],
+        student_log[0],
+        "the student is trained again"
+    );
+    assert!(close(
+        resumed.teacher.evaluation.psnr,
+        report.teacher.evaluation.psnr
+    ));
+    assert!(close(resumed.student.evaluation.psnr, student_psnr));
     let _ = std::fs::remove_dir_all(&root);
+}
+
+/// The lines of a run's metrics log that record training steps.
+fn metrics(run: &Path) -> Vec<String> {
+    std::fs::read_to_string(run.join(prism_train::METRICS_FILE))
+        .unwrap()
+        .lines()
+        .filter(|line| line.contains("\"seconds\""))
+        .map(str::to_owned)
+        .collect()
+}
+
+/// The run as a kill before its last checkpoint leaves it.
+fn kill_at_last_but_one(run: &Path) {
+    let (_, last) = list_checkpoints(run).unwrap().pop().unwrap();
+    std::fs::remove_dir_all(last).unwrap();
 }

@@ -24,16 +24,15 @@ pub use chart::draw_ablation_chart;
 pub use rows::AblationRow;
 pub use table::ablation_markdown;
 
-use crate::checkpoint::list_checkpoints;
 use crate::config::TrainingConfig;
 use crate::error::{Result, TrainError};
 use crate::evaluate::{EvaluateOptions, Evaluation, evaluate_checkpoint};
 use crate::images::save_png;
 use crate::log::{METRICS_FILE, read_metrics};
-use crate::quickstart::{PipelineOptions, compress_schedule};
+use crate::quickstart::{PipelineOptions, compress_schedule, continue_run};
 use crate::student::distill_student;
 use crate::teacher::TeacherTask;
-use crate::trainer::{RunOptions, train};
+use crate::trainer::train;
 
 /// A finished row's result, in its folder.
 pub const ROW_FILE: &str = "row.json";
@@ -229,34 +228,7 @@ fn run_row(
         }
         return Ok(done);
     }
-    let done_steps = list_checkpoints(&dir)?.last().map(|&(step, _)| step);
-    if done_steps.is_some_and(|done| done > steps) {
-        return Err(TrainError::RunFolder {
-            path: dir,
-            message: format!(
-                "holds a run of {} steps, more than the ablation's {steps}: use another --out, or \
-                 remove the folder to train the row again",
-                done_steps.unwrap_or_default()
-            ),
-        });
-    }
-    if done_steps.is_none() {
-        // Nothing to resume: whatever a killed run left before its first checkpoint goes.
-        match std::fs::remove_dir_all(&dir) {
-            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-                return Err(TrainError::io(&dir, e));
-            }
-            _ => {}
-        }
-    }
-    if done_steps != Some(steps) {
-        let run = RunOptions {
-            steps: Some(steps),
-            resume: done_steps.is_some(),
-            progress: options.progress,
-            lpips_weights: options.lpips_weights.clone(),
-            ..RunOptions::new(&dir, &options.data, options.backend)
-        };
+    if let Some(run) = continue_run(&dir, steps, options)? {
         let mut config = row.config(&plan.config);
         if row.is_student() {
             compress_schedule(&mut config, steps);

@@ -179,14 +179,14 @@ pub unsafe fn shrunken_quickstart(
 }
 
 /// A cheap student job for pipeline tests: the teacher's objective, from the teacher's weights
-/// (`prism distill-student` is the real one).
+/// (`prism distill-student` is the real one); a resumed run continues its own checkpoint.
 pub fn fine_tune_student(
     config: &TrainingConfig,
     teacher: &Path,
     run: &prism_train::RunOptions,
 ) -> prism_train::error::Result<prism_train::RunSummary> {
     let run = prism_train::RunOptions {
-        init: Some(teacher.to_path_buf()),
+        init: (!run.resume).then(|| teacher.to_path_buf()),
         ..run.clone()
     };
     prism_train::train(config, &prism_train::TeacherTask::default(), &run)
