@@ -196,9 +196,9 @@ pub struct QuickstartReport {
 /// Runs the quickstart on `options.data`: teacher, student (through `student_job`), both
 /// evaluations.
 /// A run a killed quickstart left in `options.out` continues from its last checkpoint and a
-/// finished one is kept, so that a long one (the budget curve's 16x) is
-/// never trained twice; the student starts over when its teacher trained in this call.
-/// `prism quickstart` clears its folder first: a rerun there trains again.
+/// finished one is kept, so that a long one (the budget curve's 16x) is never trained twice;
+/// the student starts over when its teacher trained in this call. `prism quickstart` clears
+/// its run folders first: a rerun there trains again.
 ///
 /// # Errors
 /// Any error of the dataset, training or evaluation.
