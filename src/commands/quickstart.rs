@@ -7,7 +7,8 @@ use clap::Args;
 use prism_core::BackendKind;
 use prism_synth::ensure_synthetic_dataset;
 use prism_train::{
-    PipelineOptions, QuickstartPlan, distill_student, quickstart, quickstart_table, remove_run,
+    PipelineOptions, QuickstartPlan, STUDENT_RUN, TEACHER_RUN, distill_student, quickstart,
+    quickstart_table, remove_run,
 };
 
 /// Run the whole pipeline on the small config: synthesise the default dataset, train the
@@ -100,7 +101,7 @@ impl QuickstartArgs {
             out.display()
         );
         // A rerun trains again (the library's quickstart would keep finished runs).
-        for run in ["teacher", "student"] {
+        for run in [TEACHER_RUN, STUDENT_RUN] {
             remove_run(&out.join(run))?;
         }
         let report = quickstart(&plan, &options, &distill_student)

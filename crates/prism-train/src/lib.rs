@@ -82,8 +82,8 @@ pub use parallel::{DataParallel, TrainingDevice, fingerprint, training_devices};
 pub use plot::{PLOT_FILE, PLOT_SIZE, TrainingCurves, plot_metrics, plot_run};
 pub use predict::{Pairs, forward_pairs, inference_model, synthesise};
 pub use quickstart::{
-    PipelineOptions, QuickstartModel, QuickstartPlan, QuickstartReport, StudentJob,
-    compress_schedule, quickstart, quickstart_table, remove_run,
+    PipelineOptions, QuickstartModel, QuickstartPlan, QuickstartReport, STUDENT_RUN, StudentJob,
+    TEACHER_RUN, compress_schedule, quickstart, quickstart_table, remove_run,
 };
 pub use report::{EvaluationFiles, evaluation_json, markdown_report, write_evaluation};
 pub use schedule::WarmupCosine;

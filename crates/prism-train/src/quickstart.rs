@@ -28,6 +28,11 @@ pub const SMALL_CONFIG: &str = include_str!("../../../configs/small.toml");
 /// The tiny config (64 px).
 pub const TINY_CONFIG: &str = include_str!("../../../configs/tiny.toml");
 
+/// The teacher's run folder inside a quickstart's folder.
+pub const TEACHER_RUN: &str = "teacher";
+/// The student's run folder inside a quickstart's folder.
+pub const STUDENT_RUN: &str = "student";
+
 /// People in the `--fast` plan's synthetic dataset.
 pub const FAST_SUBJECTS: usize = 30;
 
@@ -232,7 +237,7 @@ pub fn quickstart(
         })
     };
 
-    let teacher_dir = options.out.join("teacher");
+    let teacher_dir = options.out.join(TEACHER_RUN);
     let t0 = Instant::now();
     let teacher_run = continue_run(&teacher_dir, plan.teacher_steps, options)?;
     let teacher_trained = teacher_run.is_some();
@@ -244,7 +249,7 @@ pub fn quickstart(
     }
     let teacher = evaluate_run(&teacher_dir, plan.teacher_steps, t0.elapsed().as_secs_f64())?;
 
-    let student_dir = options.out.join("student");
+    let student_dir = options.out.join(STUDENT_RUN);
     if teacher_trained {
         // Whatever student is there was distilled from another teacher.
         remove_run(&student_dir)?;
