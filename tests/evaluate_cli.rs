@@ -176,6 +176,19 @@ fn evaluate_writes_every_key_the_report_and_the_grids() {
         copy["psnr_disoccluded"].as_f64().unwrap() < copy["psnr"].as_f64().unwrap(),
         "{copy}"
     );
+    // Filling the region from the ground truth removes error and nothing else; the copy of
+    // the source has all of its region wrong, so it gains.
+    for method in [&v, gs] {
+        let (filled, psnr) = (
+            method["psnr_region_filled"].as_f64().unwrap(),
+            method["psnr"].as_f64().unwrap(),
+        );
+        assert!(filled >= psnr, "{method}");
+    }
+    assert!(
+        copy["psnr_region_filled"].as_f64().unwrap() > copy["psnr"].as_f64().unwrap() + 0.01,
+        "{copy}"
+    );
     assert_eq!(gs["subjects"][name]["views"], 100);
     for axis in ["yaw", "pitch"] {
         assert_eq!(bins(gs, axis), bins(&v, axis), "{axis}");

@@ -37,7 +37,7 @@ pub use objective::{
 pub use opacity::{mask_rows, opacity_loss};
 pub use point::{POINT_LOSS_SCALES, PointLoss, point_loss};
 pub use psnr::psnr;
-pub use region::score_region;
+pub use region::{psnr_region_filled, score_region};
 pub use scores::{ImageScores, score_images};
 pub use smplx::{SmplxParams, smplx_loss};
 pub use ssim::{SSIM_WINDOW, ssim, ssim_map};

@@ -25,7 +25,7 @@ use prism_data::{
     DatasetReader, PrismBatcher, Sample, SampleDataset, SplitKind, TargetSelection,
     disoccluded_region,
 };
-use prism_losses::{ImageScores, Lpips, score_images, score_region};
+use prism_losses::{ImageScores, Lpips, psnr_region_filled, score_images, score_region};
 use prism_model::Prism;
 use serde::Serialize;
 
@@ -89,7 +89,8 @@ pub struct Evaluation {
     /// The scores by view angle.
     pub per_angle: PerAngle,
     /// The model's scores in the disoccluded region (`psnr_disoccluded`, `ssim_disoccluded`,
-    /// `lpips_disoccluded` in the JSON).
+    /// `lpips_disoccluded` in the JSON), and `psnr_region_filled`: its overall PSNR with the
+    /// region taken from the ground truth.
     #[serde(flatten)]
     pub disoccluded: Option<DisoccludedScores>,
     /// Image side of the evaluation, pixels (the model's resolution).
@@ -229,8 +230,9 @@ pub fn evaluate(
             let region = disoccluded_regions(&samples, device);
             let score = |tally: &mut Tally, image: Tensor<4>| {
                 tally.add_batch(&samples, &score_images(image.clone(), gt.clone(), lpips));
-                let in_region = score_region(image, gt.clone(), region.clone(), lpips);
-                tally.add_disoccluded(&samples, &in_region);
+                let in_region = score_region(image.clone(), gt.clone(), region.clone(), lpips);
+                let filled = psnr_region_filled(image, gt.clone(), region.clone());
+                tally.add_disoccluded(&samples, &in_region, &filled);
             };
             score(&mut nvs, pred.clone());
             score(&mut copy, batch.source_image.clone());

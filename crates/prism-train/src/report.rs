@@ -232,6 +232,16 @@ pub fn markdown_report(
              on the region.\n"
         );
         out.push_str(&table.to_markdown());
+        if let Some(d) = e.disoccluded {
+            let _ = writeln!(
+                out,
+                "\nWith this region taken from the ground truth the model would score {:.3} dB \
+                 overall ({:+.3} dB): the most that any better guess of what the source does not \
+                 show can add.",
+                d.psnr_region_filled,
+                d.psnr_region_filled - e.psnr
+            );
+        }
         out.push('\n');
     }
     let others = other_rows(e);

@@ -75,6 +75,9 @@ pub struct DisoccludedScores {
     pub ssim_disoccluded: f64,
     /// LPIPS of the prediction pasted into the ground truth on the region.
     pub lpips_disoccluded: f64,
+    /// PSNR over the whole image with the region taken from the ground truth: the most that
+    /// any better guess in the region could add to the overall PSNR.
+    pub psnr_region_filled: f64,
 }
 
 impl DisoccludedScores {
@@ -131,8 +134,9 @@ struct ViewScore {
 pub struct Tally {
     subjects: BTreeMap<String, Vec<ImageScores>>,
     views: Vec<ViewScore>,
-    /// Each subject's scores in the disoccluded region.
-    disoccluded: BTreeMap<String, Vec<ImageScores>>,
+    /// Each subject's scores in the disoccluded region, with the PSNR of the view whose region
+    /// is filled from the ground truth.
+    disoccluded: BTreeMap<String, Vec<(ImageScores, f64)>>,
 }
 
 impl Tally {
@@ -154,15 +158,17 @@ impl Tally {
         }
     }
 
-    /// Adds the scores of a batch's views in their disoccluded regions, as
-    /// [`Tally::add_batch`].
-    pub fn add_disoccluded(&mut self, samples: &[Sample], scores: &[ImageScores]) {
+    /// Adds the scores of a batch's views in their disoccluded regions and the PSNR of the
+    /// views with the region filled from the ground truth
+    /// ([`prism_losses::psnr_region_filled`]), as [`Tally::add_batch`].
+    pub fn add_disoccluded(&mut self, samples: &[Sample], scores: &[ImageScores], filled: &[f64]) {
         assert_eq!(samples.len(), scores.len(), "one score per sample");
-        for (sample, &scores) in samples.iter().zip(scores) {
+        assert_eq!(samples.len(), filled.len(), "one filled PSNR per sample");
+        for ((sample, &scores), &filled) in samples.iter().zip(scores).zip(filled) {
             self.disoccluded
                 .entry(sample.subject.clone())
                 .or_default()
-                .push(scores);
+                .push((scores, filled));
         }
     }
 
@@ -176,16 +182,22 @@ impl Tally {
         let means: Vec<ImageScores> = subjects.values().map(|m| m.mean).collect();
         let ImageScores { psnr, ssim, lpips } = ImageScores::mean(&means);
         let disoccluded = (!self.disoccluded.is_empty()).then(|| {
-            let subjects: Vec<ImageScores> = self
+            let subjects: Vec<(ImageScores, f64)> = self
                 .disoccluded
                 .values()
-                .map(|v| measured_mean(v))
+                .map(|views| {
+                    let (scores, filled): (Vec<ImageScores>, Vec<f64>) =
+                        views.iter().copied().unzip();
+                    (measured_mean(&scores), mean(&filled))
+                })
                 .collect();
-            let ImageScores { psnr, ssim, lpips } = measured_mean(&subjects);
+            let (scores, filled): (Vec<ImageScores>, Vec<f64>) = subjects.into_iter().unzip();
+            let ImageScores { psnr, ssim, lpips } = measured_mean(&scores);
             DisoccludedScores {
                 psnr_disoccluded: psnr,
                 ssim_disoccluded: ssim,
                 lpips_disoccluded: lpips,
+                psnr_region_filled: mean(&filled),
             }
         });
         MethodScores {
@@ -205,14 +217,20 @@ impl Tally {
 /// The mean of each metric over the `scores` that measured it (not NaN); NaN when none did.
 fn measured_mean(scores: &[ImageScores]) -> ImageScores {
     let mean = |f: fn(&ImageScores) -> f64| {
-        let values: Vec<f64> = scores.iter().map(f).filter(|v| !v.is_nan()).collect();
-        values.iter().sum::<f64>() / values.len() as f64
+        let values: Vec<f64> = scores.iter().map(f).collect();
+        mean(&values)
     };
     ImageScores {
         psnr: mean(|s| s.psnr),
         ssim: mean(|s| s.ssim),
         lpips: mean(|s| s.lpips),
     }
+}
+
+/// The mean of the `values` that are not NaN; NaN when all are.
+fn mean(values: &[f64]) -> f64 {
+    let measured: Vec<f64> = values.iter().copied().filter(|v| !v.is_nan()).collect();
+    measured.iter().sum::<f64>() / measured.len() as f64
 }
 
 /// Pools the views into bins of `ANGLE_BIN_DEG` degrees of |angle|, `[from, to)`; the last bin
