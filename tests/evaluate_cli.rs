@@ -189,6 +189,17 @@ fn evaluate_writes_every_key_the_report_and_the_grids() {
         copy["psnr_region_filled"].as_f64().unwrap() > copy["psnr"].as_f64().unwrap() + 0.01,
         "{copy}"
     );
+    // The source warped at the true depth beats copying it: the target views are other
+    // viewpoints of the same surface.
+    let warp = &v["true_depth_warp"];
+    assert!(
+        warp["psnr"].as_f64().unwrap() > copy["psnr"].as_f64().unwrap() + 0.2,
+        "{warp} vs {copy}"
+    );
+    assert!(
+        warp["psnr_disoccluded"].as_f64().unwrap().is_finite(),
+        "{warp}"
+    );
     assert_eq!(gs["subjects"][name]["views"], 100);
     for axis in ["yaw", "pitch"] {
         assert_eq!(bins(gs, axis), bins(&v, axis), "{axis}");

@@ -37,6 +37,7 @@ use crate::predict::{Pairs, forward_pairs, inference_model, synthesise};
 use crate::report::{EvaluationFiles, write_evaluation};
 use crate::tally::{DisoccludedScores, MeanScores, MethodScores, PerAngle, Tally};
 use crate::validate::validation_views;
+use crate::warp::true_depth_warp;
 use prism_core::images::HostImages;
 
 /// How an evaluation runs.
@@ -101,6 +102,10 @@ pub struct Evaluation {
     /// prediction of every target view. A model that does not beat it has learnt nothing about
     /// other viewpoints.
     pub copy_source: MethodScores,
+    /// The true-depth warp on the same views (`true_depth_warp` in the JSON): the source's
+    /// pixels as Gaussians at the dataset's own 3D points ([`crate::warp`]), what a
+    /// geometric output would show with perfect geometry.
+    pub true_depth_warp: MethodScores,
     /// The 3DGS head's render `I_gs` (over the background) on the same views, from a forward
     /// pass with the head; `None` (absent from the JSON) for a model without a 3DGS head.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -205,6 +210,7 @@ pub fn evaluate(
     let subjects = dataset.subjects().to_vec();
     let bar = progress_bar(options.progress, (subjects.len() * views.len()) as u64);
     let (mut nvs, mut copy, mut gs) = (Tally::default(), Tally::default(), Tally::default());
+    let mut warp = Tally::default();
     let mut grids = Vec::new();
     let mut fps_pair = None;
     for (s, subject) in subjects.iter().enumerate() {
@@ -236,6 +242,7 @@ pub fn evaluate(
             };
             score(&mut nvs, pred.clone());
             score(&mut copy, batch.source_image.clone());
+            score(&mut warp, true_depth_warp(&samples, background, device));
             if let Some(g) = out.gaussians {
                 score(&mut gs, g.image.clamp(0.0, 1.0));
             }
@@ -283,6 +290,7 @@ pub fn evaluate(
             resolution,
             views_per_subject: views.len(),
             copy_source: copy.finish(),
+            true_depth_warp: warp.finish(),
             gs: has_gs.then(|| gs.finish()),
         },
         grids,

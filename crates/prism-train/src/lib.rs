@@ -52,6 +52,7 @@ pub mod teacher;
 pub mod trainer;
 pub mod training_step;
 pub mod validate;
+pub mod warp;
 
 pub use ablate::{
     Ablation, AblationFiles, AblationPlan, AblationRow, RowResult, ablate, ablation_markdown,

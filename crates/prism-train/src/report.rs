@@ -13,6 +13,7 @@ use crate::images::{save_png, save_text};
 use crate::log::METRICS_FILE;
 use crate::plot::{PLOT_FILE, plot_metrics};
 use crate::tally::{MeanScores, MethodScores};
+use crate::warp::WARP_SCALE;
 
 /// File name of the JSON scores in an evaluation folder.
 pub const EVALUATION_JSON: &str = "evaluation.json";
@@ -107,7 +108,7 @@ pub fn evaluation_json(evaluation: &Evaluation) -> String {
 }
 
 /// The report's first table: the means of the model (with its FPS), of its 3DGS head's render
-/// (when it has one) and of the copy of the source view.
+/// (when it has one), of the copy of the source view and of the true-depth warp.
 fn means_table(e: &Evaluation) -> ScoreTable {
     let mut table = ScoreTable::new("prediction").after(["FPS (1 pair)"]);
     table.row(
@@ -126,8 +127,13 @@ fn means_table(e: &Evaluation) -> ScoreTable {
     }
     let copy = e.copy_source.mean();
     table.row("copy source (view 0)", &[], &copy, &[NO_VALUE.into()]);
+    let warp = e.true_depth_warp.mean();
+    table.row(WARP_ROW, &[], &warp, &[NO_VALUE.into()]);
     table
 }
+
+/// The true-depth warp's row name in the report's tables.
+const WARP_ROW: &str = "source warped at the true depth";
 
 /// The means in the disoccluded region of the model, its 3DGS head (when it has one) and the
 /// copy of the source view; `None` when they were not measured.
@@ -144,6 +150,9 @@ fn disoccluded_table(e: &Evaluation) -> Option<ScoreTable> {
     }
     if let Some(copy) = e.copy_source.disoccluded {
         table.row("copy source (view 0)", &[], &copy.scores(), &[]);
+    }
+    if let Some(warp) = e.true_depth_warp.disoccluded {
+        table.row(WARP_ROW, &[], &warp.scores(), &[]);
     }
     Some(table)
 }
@@ -221,6 +230,13 @@ pub fn markdown_report(
         e.psnr - c.psnr,
         e.ssim - c.ssim,
         e.lpips - c.lpips
+    );
+    let _ = writeln!(
+        out,
+        "The source warped at the true depth is its foreground pixels as Gaussians at the \
+         dataset's own 3D points ({WARP_SCALE} pixel footprints), rendered into each target \
+         view: what a warp shows with perfect geometry. Model minus it: PSNR {:+.3} dB.\n",
+        e.psnr - e.true_depth_warp.psnr
     );
     if let Some(table) = disoccluded_table(e) {
         let _ = writeln!(
