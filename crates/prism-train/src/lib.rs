@@ -17,7 +17,8 @@
 //! - Evaluation ([`evaluate()`]: the paper's protocol, per-angle breakdown, FPS; the report in
 //!   [`report`]) and inference from a photo ([`infer()`]), both through [`predict`]; images in
 //!   [`images`]. Validation and evaluation score views with `prism_losses::score_images` and
-//!   average them per subject, then over the subjects, with a [`Tally`].
+//!   average them per subject, then over the subjects, with a [`Tally`]; beside the model,
+//!   the copy of the source and the true-depth warp ([`warp`]) are scored on the same views.
 //! - Ablations ([`ablate()`]): the paper's ablation rows ([`AblationRow`]) trained at one budget
 //!   and scored on the same views, as a table and a bar chart.
 //! - Budget curve ([`budget_curve`]): the quick start at several multiples of its steps.
