@@ -60,7 +60,7 @@ const PANELS: [Panel; 3] = [
     },
 ];
 
-/// Draws the chart of `ablation` into an image of [`CHART_SIZE`].
+/// Draws the chart of `ablation` into an image of `CHART_SIZE`.
 ///
 /// # Errors
 /// A message when plotters cannot draw.
