@@ -14,8 +14,8 @@ use prism_core::camera::Camera;
 
 use super::io::{Mask, PointMap};
 
-/// Mask values above this are foreground.
-const FOREGROUND: f32 = 0.5;
+/// Mask values above this are foreground (the disoccluded region and the true-depth warp).
+pub const FOREGROUND: f32 = 0.5;
 
 /// The disoccluded region (1 inside, 0 outside) of the target view with camera `target` and
 /// foreground `target_mask`, for the source view whose visible surface is `points` on

@@ -16,7 +16,7 @@ pub mod writer;
 
 pub use batch::{BatchPixels, PIXEL_PLANES, PairInfo, PrismBatch, PrismBatcher};
 pub use check::{CheckReport, Problem, check_dataset};
-pub use disocclusion::disoccluded_region;
+pub use disocclusion::{FOREGROUND, disoccluded_region};
 pub use error::DataError;
 pub use io::{Mask, PointMap};
 pub use reader::DatasetReader;

@@ -5,7 +5,7 @@
 //! depth could still give, and what a model gains above it had to be synthesised.
 
 use burn::tensor::{Device, Tensor};
-use prism_data::Sample;
+use prism_data::{FOREGROUND, Sample};
 use prism_render::splat::{GaussianCloud, SH_C0, background, render};
 
 /// Size of each Gaussian, in footprints of one source pixel at its distance (isotropic): the
@@ -14,9 +14,6 @@ pub const WARP_SCALE: f32 = 0.3;
 
 /// Opacity of a foreground pixel's Gaussian (the largest the keying of `gs_keying` gives).
 const WARP_OPACITY: f32 = 0.99;
-
-/// Mask values above this are foreground.
-const FOREGROUND: f32 = 0.5;
 
 /// The true-depth warp of each sample's source into its (first) target camera, `[B, 3, H, W]`
 /// in [0, 1] over `bg`.
