@@ -135,8 +135,8 @@ fn means_table(e: &Evaluation) -> ScoreTable {
 /// The true-depth warp's row name in the report's tables.
 const WARP_ROW: &str = "source warped at the true depth";
 
-/// The means in the disoccluded region of the model, its 3DGS head (when it has one) and the
-/// copy of the source view; `None` when they were not measured.
+/// The means in the disoccluded region of the model, its 3DGS head (when it has one), the
+/// copy of the source view and the true-depth warp; `None` when they were not measured.
 fn disoccluded_table(e: &Evaluation) -> Option<ScoreTable> {
     let mut table = ScoreTable::new("prediction (disoccluded region)");
     table.row(
