@@ -1,4 +1,4 @@
-//! Fused CPU kernels of prism's backbone, with hand-written backward passes.
+//! Fused kernels of prism's backbone, with hand-written backward passes.
 //!
 //! The backbone's training step, written with Burn's tensor ops, makes one graph node and one
 //! pass over memory per elementary op: a LayerNorm is about eight, softmax attention
@@ -7,11 +7,17 @@
 //! backward, vectorised for AVX-512 / AVX2 (chosen at run time) and split over threads;
 //! attention runs block by block over the queries with `gemm` (FlashAttention's scheme).
 //!
+//! On the GPU backends (features `wgpu`, `cuda`) softmax attention runs flash-attention kernels
+//! in CubeCL ([`device`]): forward and backward without the `T x T` scores, in f32, f16 or bf16.
+//!
 //! The functions below pick the kernel when the tensor is f32 on a CPU backend (flex, ndarray;
-//! tracked by autodiff or not) and the composition of Burn ops in [`unfused`] otherwise (GPU
-//! backends, half precision), so a model calls them on every backend.
+//! tracked by autodiff or not), the flash kernels for attention on a GPU backend, and the
+//! composition of Burn ops in [`unfused`] otherwise (the other GPU operations, half precision
+//! on the CPU), so a model calls them on every backend.
 
 mod attention;
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+pub mod device;
 mod elementwise;
 mod extension;
 mod host;
@@ -68,8 +74,10 @@ pub fn rms_norm<const D: usize>(x: Tensor<D>, gamma: Tensor<1>, eps: f64) -> Ten
 
 /// Softmax attention `softmax(q k^T / sqrt(d_h)) v` on `[B, H, T, d_h]` tensors of one shape.
 ///
-/// Without a fused kernel: Burn's attention op when no gradient is needed (fused on the
-/// backends that have one), else matmul, softmax, matmul.
+/// On the CPU backends in f32: the fused host kernel. On a GPU backend, prism's flash kernels
+/// ([`device`]) when [`GpuAttention`] says so (opt-in until they are checked on an adapter).
+/// Otherwise Burn's attention op when no gradient is needed (fused on the backends that have
+/// one, with cooperative matrices where the adapter has them), else matmul, softmax, matmul.
 pub fn attention(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
     if is_fused(&q) && q.dims() == k.dims() && q.dims() == v.dims() {
         return Tensor::from_dispatch(<Dispatch as FusedOps>::fused_attention(
@@ -78,7 +86,12 @@ pub fn attention(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
             v.into_dispatch(),
         ));
     }
-    if q.is_tracked() || k.is_tracked() || v.is_tracked() {
+    let tracked = q.is_tracked() || k.is_tracked() || v.is_tracked();
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    if device::supported(&q, &k, &v) && GpuAttention::chosen().takes_flash(tracked) {
+        return device::flash(q, k, v);
+    }
+    if tracked {
         return unfused::attention(q, k, v);
     }
     burn::tensor::module::attention(
@@ -93,4 +106,50 @@ pub fn attention(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
             is_causal: false,
         },
     )
+}
+
+/// Which attention the GPU backends run, from the `PRISM_ATTENTION` environment variable (read
+/// once per process), so that `prism bench` and `scripts/peer/gpu_compare.py` can time each.
+///
+/// The default stays on Burn's ops until the flash kernels have been run on an adapter: the
+/// only one CI has, lavapipe, could not be used to check them yet (README, "Backends").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum GpuAttention {
+    /// `auto`: prism's flash kernels for training (forward and backward without the `T x T`
+    /// scores), Burn's fused attention op for inference.
+    Auto,
+    /// `flash`: prism's flash kernels for training and inference.
+    Flash,
+    /// `burn` (the default): Burn's ops only: its fused attention op for inference,
+    /// matmul-softmax-matmul (which keeps the scores for the backward pass) for training.
+    #[default]
+    Burn,
+}
+
+impl GpuAttention {
+    /// The choice of `PRISM_ATTENTION` (`auto`, `flash` or `burn`); unset is `burn`, and any other
+    /// value is reported on stderr and taken as `burn`.
+    pub fn chosen() -> Self {
+        static CHOSEN: std::sync::OnceLock<GpuAttention> = std::sync::OnceLock::new();
+        *CHOSEN.get_or_init(|| match std::env::var("PRISM_ATTENTION").as_deref() {
+            Ok("auto") => Self::Auto,
+            Ok("flash") => Self::Flash,
+            Err(_) | Ok("burn") => Self::Burn,
+            Ok(other) => {
+                eprintln!(
+                    "prism: PRISM_ATTENTION={other} is not one of auto, flash, burn; using burn"
+                );
+                Self::Burn
+            }
+        })
+    }
+
+    /// Whether attention with (`tracked`) or without a gradient takes prism's flash kernels.
+    pub fn takes_flash(self, tracked: bool) -> bool {
+        match self {
+            Self::Auto => tracked,
+            Self::Flash => true,
+            Self::Burn => false,
+        }
+    }
 }
