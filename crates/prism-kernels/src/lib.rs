@@ -7,13 +7,14 @@
 //! backward, vectorised for AVX-512 / AVX2 (chosen at run time) and split over threads;
 //! attention runs block by block over the queries with `gemm` (FlashAttention's scheme).
 //!
-//! On the GPU backends (features `wgpu`, `cuda`) softmax attention runs flash-attention kernels
-//! in CubeCL ([`device`]): forward and backward without the `T x T` scores, in f32, f16 or bf16.
+//! On the GPU backends (features `wgpu`, `cuda`) softmax attention can run flash-attention
+//! kernels in CubeCL (module `device`): forward and backward without the `T x T` scores, in
+//! f32, f16 or bf16; opt-in through [`GpuAttention`] until they have passed on an adapter.
 //!
 //! The functions below pick the kernel when the tensor is f32 on a CPU backend (flex, ndarray;
-//! tracked by autodiff or not), the flash kernels for attention on a GPU backend, and the
-//! composition of Burn ops in [`unfused`] otherwise (the other GPU operations, half precision
-//! on the CPU), so a model calls them on every backend.
+//! tracked by autodiff or not), the flash kernels for attention on a GPU backend when chosen,
+//! and the composition of Burn ops in [`unfused`] otherwise (GPU backends, half precision on
+//! the CPU), so a model calls them on every backend.
 
 mod attention;
 #[cfg(any(feature = "wgpu", feature = "cuda"))]
@@ -75,7 +76,7 @@ pub fn rms_norm<const D: usize>(x: Tensor<D>, gamma: Tensor<1>, eps: f64) -> Ten
 /// Softmax attention `softmax(q k^T / sqrt(d_h)) v` on `[B, H, T, d_h]` tensors of one shape.
 ///
 /// On the CPU backends in f32: the fused host kernel. On a GPU backend, prism's flash kernels
-/// ([`device`]) when [`GpuAttention`] says so (opt-in until they are checked on an adapter).
+/// (module `device`) when [`GpuAttention`] says so (opt-in until they are checked on an adapter).
 /// Otherwise Burn's attention op when no gradient is needed (fused on the backends that have
 /// one, with cooperative matrices where the adapter has them), else matmul, softmax, matmul.
 pub fn attention(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
@@ -109,7 +110,7 @@ pub fn attention(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
 }
 
 /// Which attention the GPU backends run, from the `PRISM_ATTENTION` environment variable (read
-/// once per process), so that `prism bench` and `scripts/peer/gpu_compare.py` can time each.
+/// once per process), so that one binary can time each (`PRISM_ATTENTION=flash prism bench`).
 ///
 /// The default stays on Burn's ops until the flash kernels have been run on an adapter: the
 /// only one CI has, lavapipe, could not be used to check them yet (README, "Backends").
