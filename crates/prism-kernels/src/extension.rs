@@ -212,20 +212,11 @@ impl<B: HostTensors> Backward<B, 2> for NormBackward {
     type State = (FloatTensor<B>, FloatTensor<B>, f64);
 
     fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
-        let Ops {
-            parents,
-            node,
-            state: (x, gamma, eps),
-        } = ops;
-        let grad = grads.consume::<B>(&node);
-        let (dx, dgamma) = norm_backward::<B>(self.0, x, gamma, grad, eps);
-        let [x_node, gamma_node] = parents;
-        if let Some(node) = x_node {
-            grads.register::<B>(node.id, dx);
-        }
-        if let Some(node) = gamma_node {
-            grads.register::<B>(node.id, dgamma);
-        }
+        let kind = self.0;
+        backward_each::<B, _, 2>(ops, grads, |(x, gamma, eps), grad| {
+            let (dx, dgamma) = norm_backward::<B>(kind, x, gamma, grad, eps);
+            [dx, dgamma]
+        });
     }
 }
 
@@ -237,17 +228,26 @@ impl<B: HostTensors> Backward<B, 3> for AttentionBackward {
     type State = AttentionState<B>;
 
     fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
-        let Ops {
-            parents,
-            node,
-            state,
-        } = ops;
-        let grad = grads.consume::<B>(&node);
-        let gradients = attention_backward::<B>(state, grad);
-        for (parent, gradient) in parents.into_iter().zip(gradients) {
-            if let Some(node) = parent {
-                grads.register::<B>(node.id, gradient);
-            }
+        backward_each::<B, _, 3>(ops, grads, attention_backward::<B>);
+    }
+}
+
+/// One backward step of an operation with `N` inputs: `step(state, dL/d(output))` gives the
+/// gradient of each input, registered for those that are tracked.
+pub(crate) fn backward_each<B: Backend, S, const N: usize>(
+    ops: Ops<S, N>,
+    grads: &mut Gradients,
+    step: impl FnOnce(S, FloatTensor<B>) -> [FloatTensor<B>; N],
+) {
+    let Ops {
+        parents,
+        node,
+        state,
+    } = ops;
+    let grad = grads.consume::<B>(&node);
+    for (parent, gradient) in parents.into_iter().zip(step(state, grad)) {
+        if let Some(node) = parent {
+            grads.register::<B>(node.id, gradient);
         }
     }
 }

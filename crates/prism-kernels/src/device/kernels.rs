@@ -149,6 +149,30 @@ fn store_row<F: Float>(
     }
 }
 
+/// Where a unit's row lies: the sequence length, the head's first element, the row's first
+/// element and whether the row exists (the last block of a head has units past its end).
+#[derive(CubeType, Clone, Copy)]
+struct RowPlace {
+    tokens: usize,
+    head_base: usize,
+    at: usize,
+    valid: bool,
+}
+
+/// This unit's row of head `CUBE_POS_Y`, block `CUBE_POS_X` of [`ROWS`] rows.
+#[cube]
+fn row_place(tokens: u32, #[comptime] head_dim: usize) -> RowPlace {
+    let t = tokens as usize;
+    let head_base = CUBE_POS_Y as usize * t * head_dim;
+    let row = CUBE_POS_X as usize * comptime!(ROWS) + UNIT_POS as usize;
+    RowPlace {
+        tokens: t,
+        head_base,
+        at: head_base + row * head_dim,
+        valid: row < t,
+    }
+}
+
 /// The forward pass: `out_i = sum_j softmax_j(q_i . k_j scale) v_j` and `lse_i`, one unit per
 /// query row, cubes `(query block, bh)`.
 #[cube(launch_unchecked)]
@@ -164,12 +188,12 @@ pub(crate) fn forward_kernel<F: Float>(
     #[comptime] tile: usize,
     #[define(F)] _dtype: ElemType,
 ) {
-    let t = tokens as usize;
-    let bh = CUBE_POS_Y as usize;
-    let row = CUBE_POS_X as usize * comptime!(ROWS) + UNIT_POS as usize;
-    let valid = row < t;
-    let head_base = bh * t * head_dim;
-    let q_row = load_row::<F>(q, head_base + row * head_dim, valid, scale, head_dim);
+    let place = row_place(tokens, head_dim);
+    let t = place.tokens;
+    let head_base = place.head_base;
+    let at = place.at;
+    let valid = place.valid;
+    let q_row = load_row::<F>(q, at, valid, scale, head_dim);
     let mut acc = zero_row(head_dim);
     let mut scores = Array::<f32>::new(tile);
     let mut running_max = f32::new(LOWEST);
@@ -211,14 +235,8 @@ pub(crate) fn forward_kernel<F: Float>(
         first += tile;
     }
     if valid {
-        store_row::<F>(
-            out,
-            &acc,
-            head_base + row * head_dim,
-            1.0 / running_sum,
-            head_dim,
-        );
-        lse[bh * t + row] = running_max + f32::ln(running_sum);
+        store_row::<F>(out, &acc, at, 1.0 / running_sum, head_dim);
+        lse[at / head_dim] = running_max + f32::ln(running_sum);
     }
 }
 
@@ -241,12 +259,11 @@ pub(crate) fn query_grad_kernel<F: Float>(
     #[comptime] tile: usize,
     #[define(F)] _dtype: ElemType,
 ) {
-    let t = tokens as usize;
-    let bh = CUBE_POS_Y as usize;
-    let row = CUBE_POS_X as usize * comptime!(ROWS) + UNIT_POS as usize;
-    let valid = row < t;
-    let head_base = bh * t * head_dim;
-    let at = head_base + row * head_dim;
+    let place = row_place(tokens, head_dim);
+    let t = place.tokens;
+    let head_base = place.head_base;
+    let at = place.at;
+    let valid = place.valid;
     let q_row = load_row::<F>(q, at, valid, scale, head_dim);
     let do_row = load_row::<F>(grad_out, at, valid, 1.0, head_dim);
     let o_row = load_row::<F>(out, at, valid, 1.0, head_dim);
@@ -257,8 +274,8 @@ pub(crate) fn query_grad_kernel<F: Float>(
     }
     let mut row_lse = 0.0f32;
     if valid {
-        delta[bh * t + row] = d;
-        row_lse = lse[bh * t + row];
+        delta[at / head_dim] = d;
+        row_lse = lse[at / head_dim];
     }
     let mut acc = zero_row(head_dim);
     let mut keys = Shared::<[f32]>::new_slice(comptime!(tile * head_dim));
@@ -303,12 +320,11 @@ pub(crate) fn key_grad_kernel<F: Float>(
     #[comptime] tile: usize,
     #[define(F)] _dtype: ElemType,
 ) {
-    let t = tokens as usize;
-    let bh = CUBE_POS_Y as usize;
-    let row = CUBE_POS_X as usize * comptime!(ROWS) + UNIT_POS as usize;
-    let valid = row < t;
-    let head_base = bh * t * head_dim;
-    let at = head_base + row * head_dim;
+    let place = row_place(tokens, head_dim);
+    let t = place.tokens;
+    let head_base = place.head_base;
+    let at = place.at;
+    let valid = place.valid;
     let k_row = load_row::<F>(k, at, valid, 1.0, head_dim);
     let v_row = load_row::<F>(v, at, valid, 1.0, head_dim);
     let mut acc_k = zero_row(head_dim);
@@ -324,8 +340,8 @@ pub(crate) fn key_grad_kernel<F: Float>(
         stage_rows::<F>(
             grad_out, &mut grads, head_base, first, t, 1.0, tile, head_dim,
         );
-        stage_values(lse, &mut lses, bh * t, first, t, tile);
-        stage_values(delta, &mut deltas, bh * t, first, t, tile);
+        stage_values(lse, &mut lses, head_base / head_dim, first, t, tile);
+        stage_values(delta, &mut deltas, head_base / head_dim, first, t, tile);
         sync_cube();
         let count = min(t - first, tile);
         #[unroll]

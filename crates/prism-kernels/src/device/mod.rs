@@ -19,6 +19,8 @@ use burn::tensor::{DType, Tensor};
 
 pub use ops::FlashDeviceOps;
 
+use crate::extension::backward_each;
+
 /// The widest head the kernels take (their rows live in registers).
 pub const MAX_HEAD_DIM: usize = 128;
 
@@ -61,18 +63,11 @@ impl<B: FlashDeviceOps> Backward<B, 3> for FlashBackward {
     type State = FlashState<B>;
 
     fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
-        let Ops {
-            parents,
-            node,
-            state,
-        } = ops;
-        let grad = grads.consume::<B>(&node);
-        let (dq, dk, dv) = B::flash_backward(state.q, state.k, state.v, state.out, state.lse, grad);
-        for (parent, gradient) in parents.into_iter().zip([dq, dk, dv]) {
-            if let Some(node) = parent {
-                grads.register::<B>(node.id, gradient);
-            }
-        }
+        backward_each::<B, _, 3>(ops, grads, |state, grad| {
+            let (dq, dk, dv) =
+                B::flash_backward(state.q, state.k, state.v, state.out, state.lse, grad);
+            [dq, dk, dv]
+        });
     }
 }
 
