@@ -12,6 +12,8 @@
 //! flash_attention -- --include-ignored`.
 #![cfg(feature = "wgpu")]
 
+mod common;
+
 use std::sync::{Mutex, MutexGuard};
 
 use burn::tensor::{DType, Device, Distribution, Tensor};
@@ -22,27 +24,6 @@ use prism_kernels::unfused;
 fn serial() -> MutexGuard<'static, ()> {
     static LOCK: Mutex<()> = Mutex::new(());
     LOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
-}
-
-/// The wgpu device when an adapter answers, else `None` (a panic under `PRISM_REQUIRE_WGPU`).
-fn wgpu() -> Option<Device> {
-    let works = std::panic::catch_unwind(|| {
-        let device = Device::wgpu(Default::default());
-        let sum = Tensor::<1>::from_floats([1.0, 2.0], &device)
-            .sum()
-            .into_scalar::<f32>();
-        (sum == 3.0).then_some(device)
-    });
-    match works {
-        Ok(Some(device)) => Some(device),
-        _ if std::env::var_os("PRISM_REQUIRE_WGPU").is_some() => {
-            panic!("PRISM_REQUIRE_WGPU is set but no wgpu adapter works (install Mesa's lavapipe)")
-        }
-        _ => {
-            eprintln!("skipped: no wgpu adapter (install mesa-vulkan-drivers for lavapipe)");
-            None
-        }
-    }
 }
 
 fn values<const D: usize>(x: Tensor<D>) -> Vec<f32> {
@@ -107,7 +88,9 @@ fn forward_and_grads(
 #[ignore = "the flash kernels have not passed on an adapter yet"]
 fn flash_attention_matches_unfused_attention_values_and_gradients() {
     let _guard = serial();
-    let Some(device) = wgpu() else { return };
+    let Some(device) = common::wgpu_device() else {
+        return;
+    };
     for (i, shape) in SHAPES.into_iter().enumerate() {
         device.seed(10 + i as u64);
         let inputs = [0, 1, 2].map(|_| random(shape, &device));
@@ -133,7 +116,9 @@ fn flash_attention_matches_unfused_attention_values_and_gradients() {
 #[ignore = "the flash kernels have not passed on an adapter yet"]
 fn flash_attention_takes_strided_inputs() {
     let _guard = serial();
-    let Some(device) = wgpu() else { return };
+    let Some(device) = common::wgpu_device() else {
+        return;
+    };
     device.seed(4);
     // q, k, v as the model makes them: slices of one permuted projection.
     let qkv = Tensor::<4>::random([3, 19, 2, 16], Distribution::Normal(0.0, 1.0), &device)
@@ -149,7 +134,9 @@ fn flash_attention_takes_strided_inputs() {
 #[ignore = "the flash kernels have not passed on an adapter yet"]
 fn flash_gradients_match_finite_differences_of_its_forward_pass() {
     let _guard = serial();
-    let Some(device) = wgpu() else { return };
+    let Some(device) = common::wgpu_device() else {
+        return;
+    };
     let shape = [1, 1, 6, 4];
     device.seed(21);
     let inputs = [0, 1, 2].map(|_| random(shape, &device));
@@ -190,7 +177,9 @@ fn flash_gradients_match_finite_differences_of_its_forward_pass() {
 #[ignore = "the flash kernels have not passed on an adapter yet"]
 fn half_precision_flash_attention_stays_close_to_f32() {
     let _guard = serial();
-    let Some(device) = wgpu() else { return };
+    let Some(device) = common::wgpu_device() else {
+        return;
+    };
     for dtype in [DType::F16, DType::BF16] {
         if !device.supports_dtype(dtype) {
             eprintln!("{dtype:?}: not supported by this adapter, not checked");
@@ -252,7 +241,9 @@ fn step_memory(
 #[ignore = "the flash kernels have not passed on an adapter yet"]
 fn training_memory_grows_linearly_in_tokens() {
     let _guard = serial();
-    let Some(device) = wgpu() else { return };
+    let Some(device) = common::wgpu_device() else {
+        return;
+    };
     let (short, long) = (256, 1024);
     let flash_short = step_memory(flash, &device, short);
     let flash_long = step_memory(flash, &device, long);

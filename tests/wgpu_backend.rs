@@ -10,13 +10,14 @@
 //! (set by CI), which turns the missing adapter into a failure.
 #![cfg(feature = "wgpu")]
 
+mod common;
+
 use std::path::Path;
 use std::sync::{Mutex, MutexGuard};
 
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::{AdamWConfig, GradientsParams};
 use burn::tensor::{Device, Tensor};
-use prism_core::BackendKind;
 use prism_core::reads::geometry_host_reads;
 use prism_data::{
     DatasetReader, PrismBatch, PrismBatcher, Sample, SampleDataset, SplitKind, TargetSelection,
@@ -32,31 +33,6 @@ use prism_train::{StepLoss, TeacherLoss, TrainingConfig};
 fn serial() -> MutexGuard<'static, ()> {
     static LOCK: Mutex<()> = Mutex::new(());
     LOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
-}
-
-/// The wgpu device when an adapter answers, else `None` (or a panic under CI's
-/// `PRISM_REQUIRE_WGPU=1`).
-fn wgpu_device() -> Option<Device> {
-    let device = BackendKind::Wgpu
-        .device()
-        .expect("built with --features wgpu");
-    let probe = device.clone();
-    let works = std::panic::catch_unwind(move || {
-        Tensor::<1>::from_floats([1.0, 2.0], &probe)
-            .sum()
-            .into_scalar::<f32>()
-            == 3.0
-    });
-    match works {
-        Ok(true) => Some(device),
-        _ if std::env::var_os("PRISM_REQUIRE_WGPU").is_some() => {
-            panic!("PRISM_REQUIRE_WGPU is set but no wgpu adapter works (install Mesa's lavapipe)")
-        }
-        _ => {
-            eprintln!("skipped: no wgpu adapter (install mesa-vulkan-drivers for lavapipe)");
-            None
-        }
-    }
 }
 
 fn tiny() -> TrainingConfig {
@@ -108,7 +84,9 @@ fn relative_error(a: &[f32], b: &[f32]) -> f32 {
 #[test]
 fn tiny_forward_on_wgpu_matches_flex() {
     let _serial = serial();
-    let Some(wgpu) = wgpu_device() else { return };
+    let Some(wgpu) = common::wgpu_device() else {
+        return;
+    };
     let flex = Device::flex();
     flex.seed(5);
     let config = tiny();
@@ -150,7 +128,9 @@ fn tiny_forward_on_wgpu_matches_flex() {
 #[test]
 fn one_training_step_on_wgpu_matches_flex() {
     let _serial = serial();
-    let Some(wgpu) = wgpu_device() else { return };
+    let Some(wgpu) = common::wgpu_device() else {
+        return;
+    };
     let config = tiny();
     let (samples, background) = samples(&config, 2, 32);
     let flex = Device::flex();
@@ -238,7 +218,9 @@ fn geometry_reads_of_a_step(config: &TrainingConfig, device: &Device, size: u32)
 #[test]
 fn a_training_step_on_wgpu_makes_no_geometry_read() {
     let _serial = serial();
-    let Some(wgpu) = wgpu_device() else { return };
+    let Some(wgpu) = common::wgpu_device() else {
+        return;
+    };
     let tiny = tiny();
     assert!(tiny.model.smplx_branch && tiny.model.point_branch);
     assert!(geometry_reads_of_a_step(&tiny, &Device::flex(), 32) > 0);

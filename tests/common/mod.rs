@@ -7,7 +7,9 @@
 //!   [`failure`] (asserts the one-line `error: ` the binary prints on bad input); [`stdout`],
 //!   [`stderr`] and [`text`] of an output;
 //! - files: [`scratch`] (a fresh folder per test), [`s`] (a path as an argument), [`cache`]
-//!   (this process's dataset cache, holding one synthetic dataset), [`copy_dir`].
+//!   (this process's dataset cache, holding one synthetic dataset), [`copy_dir`];
+//! - devices: `wgpu_device` (with `--features wgpu`: the adapter, or a skip, or a failure
+//!   under `PRISM_REQUIRE_WGPU`).
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
@@ -181,4 +183,30 @@ pub fn assert_training_curves(path: &Path) {
         "{}: {drawn} of {total} pixels drawn",
         path.display()
     );
+}
+
+/// The wgpu device when an adapter answers, else `None` (or a panic under CI's
+/// `PRISM_REQUIRE_WGPU=1`).
+#[cfg(feature = "wgpu")]
+pub fn wgpu_device() -> Option<burn::tensor::Device> {
+    let device = prism_core::BackendKind::Wgpu
+        .device()
+        .expect("built with --features wgpu");
+    let probe = device.clone();
+    let works = std::panic::catch_unwind(move || {
+        burn::tensor::Tensor::<1>::from_floats([1.0, 2.0], &probe)
+            .sum()
+            .into_scalar::<f32>()
+            == 3.0
+    });
+    match works {
+        Ok(true) => Some(device),
+        _ if std::env::var_os("PRISM_REQUIRE_WGPU").is_some() => {
+            panic!("PRISM_REQUIRE_WGPU is set but no wgpu adapter works (install Mesa's lavapipe)")
+        }
+        _ => {
+            eprintln!("skipped: no wgpu adapter (install mesa-vulkan-drivers for lavapipe)");
+            None
+        }
+    }
 }
