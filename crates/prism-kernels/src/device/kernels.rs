@@ -8,6 +8,11 @@
 //! so are every sum and the softmax statistics. The forward pass keeps a running maximum and
 //! sum per query (the online softmax) and writes the log-sum-exp `lse_i = m_i + ln(l_i)`; the
 //! reverse kernels recompute `P_ij = exp(q_i . k_j s - lse_i)` from it.
+//!
+//! Loops over the head dimension are unrolled (the rows stay in registers); loops over a tile's
+//! rows are not: unrolling both made kernels of `tile x head_dim` straight-line code per
+//! barrier, which Mesa's lavapipe (it compiles each barrier into an LLVM coroutine split) did
+//! not finish compiling in 13 minutes.
 
 use cubecl::prelude::*;
 
@@ -207,12 +212,8 @@ pub(crate) fn forward_kernel<F: Float>(
         sync_cube();
         let count = min(t - first, tile);
         let mut tile_max = running_max;
-        #[unroll]
-        for j in 0..tile {
-            let mut s = f32::new(LOWEST);
-            if j < count {
-                s = dot_staged(&q_row, &keys, j, head_dim);
-            }
+        for j in 0..count {
+            let s = dot_staged(&q_row, &keys, j, head_dim);
             scores[j] = s;
             tile_max = f32::max(tile_max, s);
         }
@@ -222,13 +223,10 @@ pub(crate) fn forward_kernel<F: Float>(
         for c in 0..head_dim {
             acc[c] *= correction;
         }
-        #[unroll]
-        for j in 0..tile {
-            if j < count {
-                let p = f32::exp(scores[j] - tile_max);
-                running_sum += p;
-                add_staged(&mut acc, &values, j, p, head_dim);
-            }
+        for j in 0..count {
+            let p = f32::exp(scores[j] - tile_max);
+            running_sum += p;
+            add_staged(&mut acc, &values, j, p, head_dim);
         }
         running_max = tile_max;
         sync_cube();
@@ -286,13 +284,10 @@ pub(crate) fn query_grad_kernel<F: Float>(
         stage_rows::<F>(v, &mut values, head_base, first, t, 1.0, tile, head_dim);
         sync_cube();
         let count = min(t - first, tile);
-        #[unroll]
-        for j in 0..tile {
-            if j < count {
-                let p = f32::exp(dot_staged(&q_row, &keys, j, head_dim) - row_lse);
-                let dp = dot_staged(&do_row, &values, j, head_dim);
-                add_staged(&mut acc, &keys, j, p * (dp - d), head_dim);
-            }
+        for j in 0..count {
+            let p = f32::exp(dot_staged(&q_row, &keys, j, head_dim) - row_lse);
+            let dp = dot_staged(&do_row, &values, j, head_dim);
+            add_staged(&mut acc, &keys, j, p * (dp - d), head_dim);
         }
         sync_cube();
         first += tile;
@@ -344,14 +339,11 @@ pub(crate) fn key_grad_kernel<F: Float>(
         stage_values(delta, &mut deltas, head_base / head_dim, first, t, tile);
         sync_cube();
         let count = min(t - first, tile);
-        #[unroll]
-        for i in 0..tile {
-            if i < count {
-                let p = f32::exp(dot_staged(&k_row, &queries, i, head_dim) - lses[i]);
-                add_staged(&mut acc_v, &grads, i, p, head_dim);
-                let dp = dot_staged(&v_row, &grads, i, head_dim);
-                add_staged(&mut acc_k, &queries, i, p * (dp - deltas[i]), head_dim);
-            }
+        for i in 0..count {
+            let p = f32::exp(dot_staged(&k_row, &queries, i, head_dim) - lses[i]);
+            add_staged(&mut acc_v, &grads, i, p, head_dim);
+            let dp = dot_staged(&v_row, &grads, i, head_dim);
+            add_staged(&mut acc_k, &queries, i, p * (dp - deltas[i]), head_dim);
         }
         sync_cube();
         first += tile;
