@@ -4,6 +4,7 @@
 mod common;
 
 use std::path::PathBuf;
+use std::process::Command;
 
 use prism_train::{TrainingConfig, configs_dir};
 
@@ -152,10 +153,21 @@ fn the_pytorch_peer_config_has_the_peer_shapes_and_runs() {
     assert_eq!(c.distill.group_size, 6);
     assert_eq!((c.train.batch_size, c.train.targets_per_sample), (1, 1));
     assert_eq!((c.losses.lpips, c.losses.gs), (0.0, 0.0));
-    let compare = std::fs::read_to_string(path.with_file_name("compare.py")).unwrap();
-    let shapes =
-        r#"["--width", "256", "--heads", "4", "--patch", "8", "--blocks", "6", "--group", "6"]"#;
-    assert!(compare.contains(shapes), "compare.py passes other shapes");
+    // compare.py reads the PyTorch side's shapes from the same file.
+    let script = format!(
+        "import sys; sys.path.insert(0, {dir:?}); import compare; \
+         print(' '.join(compare.backbone_shapes({path:?})))",
+        dir = path.parent().unwrap(),
+        path = path,
+    );
+    let mut python = Command::new("python3");
+    python.args(["-c", &script]);
+    let shapes = stdout(&success(python));
+    assert_eq!(
+        shapes.trim(),
+        "--width 256 --heads 4 --patch 8 --blocks 6 --group 6 --mlp-ratio 4",
+        "compare.py passes other shapes"
+    );
 
     let dir = scratch("peer");
     let out = success(prism_with_cache(

@@ -1,7 +1,7 @@
 //! `prism quickstart --fast` end to end through the built binary: dataset, teacher, student,
-//! both evaluations and the table (flex backend, fewer steps and views than the plan's so the
-//! test takes about a minute on 2 cores; no GPU); then the framing `prism infer` gives photos
-//! is checked against the synthesised people.
+//! both evaluations, the table and the phase timings (flex backend, fewer steps and views than
+//! the plan's so the test takes about a minute on 2 cores; no GPU); then the framing
+//! `prism infer` gives photos is checked against the synthesised people.
 
 mod common;
 
@@ -84,6 +84,7 @@ fn quickstart_fast_runs_end_to_end() {
         copy.iter().all(|v| v.is_finite()) && copy[0] > 5.0,
         "{copy:?}"
     );
+    assert_phase_timings(&stdout, &out_dir.join(prism_train::PHASES_FILE));
     // The student is the real distillation: the tiny schedule compressed to 4 steps ends with
     // 2 of each group of 3 blocks Linear, and L_distill is logged.
     let student = out_dir.join("student/checkpoints/step-00000004");
@@ -120,6 +121,74 @@ fn quickstart_fast_runs_end_to_end() {
         "mean person centre {centre}"
     );
     let _ = std::fs::remove_dir_all(&root);
+}
+
+/// The phase table is printed with every phase, and its JSON holds non-negative seconds that
+/// add up to no more than the wall time (per model, and for the whole quick start).
+fn assert_phase_timings(stdout: &str, json: &std::path::Path) {
+    assert!(
+        stdout.contains("| phase | teacher (s) | student (s) | total (s) |"),
+        "{stdout}"
+    );
+    for phase in [
+        "dataset (synthesis or cache)",
+        "data loading (step waits for the prefetcher)",
+        "training steps",
+        "validation",
+        "- of which LPIPS",
+        "checkpoints",
+        "evaluation",
+        "setup and the rest",
+        "wall time",
+    ] {
+        assert!(
+            stdout.contains(&format!("| {phase} | ")),
+            "no {phase} row in\n{stdout}"
+        );
+    }
+    let phases: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap();
+    let seconds = |v: &serde_json::Value, key: &str| {
+        let s = v[key].as_f64().unwrap_or_else(|| panic!("no {key} in {v}"));
+        assert!(s >= 0.0, "{key} {s} in {v}");
+        s
+    };
+    let mut covered = seconds(&phases, "dataset_seconds");
+    for model in ["teacher", "student"] {
+        let m = &phases[model];
+        let top = [
+            "data_wait",
+            "steps",
+            "validation",
+            "checkpoints",
+            "evaluation",
+            "other",
+        ];
+        let sum: f64 = top.iter().map(|k| seconds(m, k)).sum();
+        let wall = seconds(m, "wall_seconds");
+        assert!(
+            sum <= wall + 1e-9,
+            "{model}: phases {sum} s > wall {wall} s"
+        );
+        assert!(
+            seconds(m, "steps") > 0.0 && seconds(m, "evaluation") > 0.0,
+            "{m}"
+        );
+        assert!(
+            seconds(m, "validation_lpips") <= seconds(m, "validation"),
+            "{m}"
+        );
+        assert!(
+            seconds(m, "evaluation_lpips") <= seconds(m, "evaluation"),
+            "{m}"
+        );
+        covered += wall;
+    }
+    let wall = seconds(&phases, "wall_seconds");
+    assert!(
+        covered <= wall + 1e-9,
+        "{covered} s of phases > {wall} s wall"
+    );
 }
 
 /// The numbers of the table row of `stdout` that starts with `prefix` (its `-` cells skipped).

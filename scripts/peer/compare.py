@@ -3,6 +3,7 @@
 Runs `prism bench --config scripts/peer/backbone.toml` and `scripts/peer/torch_backbone.py`
 with the same shapes one after the other (never at the same time: the timings need the
 cores to themselves) and prints a Markdown table of both times and prism / PyTorch.
+`gpu_compare.py` runs the same two sides on a GPU, through the functions below.
 
 usage (from the repository root, with a Python that has torch):
     python scripts/peer/compare.py [--prism target/release/prism] [--res 128,256]
@@ -14,43 +15,89 @@ import os
 import subprocess
 import sys
 import tempfile
+import tomllib
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 CONFIG = os.path.join(HERE, "backbone.toml")
-# The shapes of backbone.toml, passed to the PyTorch side.
-SHAPES = ["--width", "256", "--heads", "4", "--patch", "8", "--blocks", "6", "--group", "6"]
+TORCH_BACKBONE = os.path.join(HERE, "torch_backbone.py")
 TRAIN_RES = 128
 
 
-def run_prism(args):
+def backbone_shapes(config):
+    """The shapes of a prism config file that torch_backbone.py takes, as its flags."""
+    with open(config, "rb") as f:
+        toml = tomllib.load(f)
+    model, distill = toml["model"], toml["distill"]
+    blocks = model["stage_one_blocks"] + model["stage_three_blocks"]
+    return ["--width", str(model["width"]), "--heads", str(model["heads"]),
+            "--patch", str(model["patch_size"]), "--blocks", str(blocks),
+            "--group", str(distill["group_size"]), "--mlp-ratio", str(model["mlp_ratio"])]
+
+
+def run_command(cmd, env=None, timeout=None, log=None):
+    """Runs `cmd` to its end (killed after `timeout` seconds) and returns its stdout. Its
+    stderr goes to ours, and both to the open file `log` when given. Raises
+    subprocess.CalledProcessError on a non-zero exit, subprocess.TimeoutExpired on a timeout."""
+    if log:
+        log.write(f"$ {' '.join(cmd)}\n")
+        log.flush()
+    try:
+        done = subprocess.run(cmd, env=env, timeout=timeout, capture_output=True, text=True)
+    except subprocess.TimeoutExpired as e:
+        echo(e.stderr, log)
+        raise
+    echo(done.stderr, log)
+    if log:
+        log.write(done.stdout)
+        log.flush()
+    if done.returncode != 0:
+        raise subprocess.CalledProcessError(done.returncode, cmd, done.stdout, done.stderr)
+    return done.stdout
+
+
+def echo(text, log):
+    """Writes a command's stderr (bytes or text, possibly None) to ours and to `log`."""
+    if isinstance(text, bytes):
+        text = text.decode(errors="replace")
+    if text:
+        sys.stderr.write(text)
+        if log:
+            log.write(text)
+            log.flush()
+
+
+def run_prism(prism, config, res, backend, warmup, iters, train_steps, extra=(), env=None,
+              timeout=None, log=None):
+    """`prism bench` on `config` at the resolutions `res` ("128,256"): its JSON rows by
+    (model, res), the training step's as ("train_step", res). The table it prints goes to our
+    stderr (and `log`)."""
     with tempfile.TemporaryDirectory() as tmp:
         out = os.path.join(tmp, "bench.json")
-        cmd = [args.prism, "bench", "--config", CONFIG, "--res", args.res,
-               "--backend", args.backend, "--warmup", str(args.warmup),
-               "--iters", str(args.iters), "--train-steps", str(args.train_steps), "--json", out]
-        subprocess.run(cmd, check=True, stdout=sys.stderr)
+        cmd = [prism, "bench", "--config", config, "--res", res, "--backend", backend,
+               "--warmup", str(warmup), "--iters", str(iters), "--train-steps",
+               str(train_steps), "--json", out, *extra]
+        echo(run_command(cmd, env, timeout, log), None)
         with open(out) as f:
             rows = json.load(f)["rows"]
-    times = {}
-    for row in rows:
-        key = ("train_step", row["res"]) if row["model"] == "train_step" else (row["model"], row["res"])
-        times[key] = row["ms"]
-    return times
+    return {(row["model"], row["res"]): row for row in rows}
 
 
-def run_torch(args):
-    cmd = [sys.executable, os.path.join(HERE, "torch_backbone.py"), *SHAPES, "--res", args.res,
-           "--threads", str(args.threads), "--warmup", str(args.warmup), "--iters",
-           str(args.iters), "--train", "--train-res", str(TRAIN_RES), "--train-steps",
-           str(args.train_steps)]
-    out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
-    times = {}
-    for line in out.splitlines():
+def run_torch(shapes, res, threads, warmup, iters, train_res, train_steps, extra=(),
+              timeout=None, log=None):
+    """torch_backbone.py with the flags `shapes` at the resolutions `res` (which must include
+    `train_res` for the training step): rows {"ms", "peak_mem_bytes"?} by (model, res), the
+    training step's as ("train_step", train_res)."""
+    cmd = [sys.executable, TORCH_BACKBONE, *shapes, "--res", res, "--threads", str(threads),
+           "--warmup", str(warmup), "--iters", str(iters), "--train", "--train-res",
+           str(train_res), "--train-steps", str(train_steps), *extra]
+    rows = {}
+    for line in run_command(cmd, timeout=timeout, log=log).splitlines():
         row = json.loads(line)
-        times[(row["model"], row["res"])] = row["ms"]
+        rows[(row["model"], row["res"])] = row
         if "train_ms" in row:
-            times[("train_step", row["res"])] = row["train_ms"]
-    return times
+            rows[("train_step", row["res"])] = {
+                "ms": row["train_ms"], "peak_mem_bytes": row.get("train_peak_mem_bytes")}
+    return rows
 
 
 def main():
@@ -67,15 +114,17 @@ def main():
     args = ap.parse_args()
     if not os.path.isfile(args.prism):
         sys.exit(f"{args.prism}: no such file (build it with `cargo build --release`)")
-    prism = run_prism(args)
-    torch_times = run_torch(args)
+    prism = run_prism(args.prism, CONFIG, args.res, args.backend, args.warmup, args.iters,
+                      args.train_steps)
+    torch_rows = run_torch(backbone_shapes(CONFIG), args.res, args.threads, args.warmup,
+                           args.iters, TRAIN_RES, args.train_steps)
     rows = []
     print("| what | res | prism ms | PyTorch ms | prism / PyTorch |")
     print("|---|---|---|---|---|")
     for key in sorted(prism, key=lambda k: (k[0] == "train_step", k[1], k[0])):
-        if key not in torch_times:
+        if key not in torch_rows:
             continue
-        ours, theirs = prism[key], torch_times[key]
+        ours, theirs = prism[key]["ms"], torch_rows[key]["ms"]
         rows.append({"what": key[0], "res": key[1], "prism_ms": ours, "torch_ms": theirs,
                      "ratio": ours / theirs})
         print(f"| {key[0]} | {key[1]} | {ours:.1f} | {theirs:.1f} | {ours / theirs:.2f}x |")

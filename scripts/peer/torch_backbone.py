@@ -1,4 +1,4 @@
-"""prism's backbone written in PyTorch, to time beside `prism bench` on the same CPU.
+"""prism's backbone written in PyTorch, to time beside `prism bench` on the same CPU or GPU.
 
 The model mirrors prism-model's backbone with the geometry parts off: the tokenizer
 (`Linear_inp([2I - 1, P_s])`, `Linear_tar(P_t)`, LayerNorm on the joined sequence), pre-norm
@@ -10,8 +10,15 @@ attention is the ReLU kernel with its normaliser, computed right to left.
 Prints one JSON object per line: {"model", "res", "ms", "train_ms"?}. `ms` is the median
 inference forward of one (source, target) pair; `train_ms` (with --train) the median of
 forward + MSE + backward + AdamW.
+
+--device cuda runs on the GPU (each timed run between two `torch.cuda.synchronize()`) and adds
+`peak_mem_bytes` (and `train_peak_mem_bytes`): `torch.cuda.max_memory_allocated()` over the
+row's runs. --dtype: f32 (the default), tf32 (f32 tensors, TF32 matrix products on CUDA) or
+bf16 (`torch.autocast` to bfloat16 around the forward pass and the loss; weights, gradients and
+AdamW stay f32).
 """
 import argparse
+import contextlib
 import json
 import time
 
@@ -118,15 +125,53 @@ def kinds(model_name, blocks, group):
     return ["full" if i % group == group - 1 else "linear" for i in range(blocks)]
 
 
-def median_ms(fn, warmup, iters):
+def median_ms(fn, warmup, iters, sync=lambda: None):
+    """Median wall time of `fn` in ms after `warmup` untimed runs; `sync` waits for the device
+    before and after each timed run."""
     for _ in range(warmup):
         fn()
     times = []
     for _ in range(iters):
+        sync()
         start = time.perf_counter()
         fn()
+        sync()
         times.append((time.perf_counter() - start) * 1e3)
     return sorted(times)[len(times) // 2]
+
+
+class Device:
+    """Where and in which precision the model runs: the autocast context, the device's
+    synchronisation and its peak-memory counter (CUDA only)."""
+
+    def __init__(self, name, dtype):
+        self.name = name
+        self.cuda = name == "cuda"
+        if self.cuda and not torch.cuda.is_available():
+            raise SystemExit("--device cuda: PyTorch sees no CUDA device")
+        self.dtype = dtype
+        if self.cuda:
+            torch.backends.cuda.matmul.allow_tf32 = dtype == "tf32"
+            torch.backends.cudnn.allow_tf32 = dtype == "tf32"
+
+    def autocast(self):
+        if self.dtype == "bf16":
+            return torch.autocast(self.name, dtype=torch.bfloat16)
+        return contextlib.nullcontext()
+
+    def sync(self):
+        if self.cuda:
+            torch.cuda.synchronize()
+
+    def reset_peak(self):
+        if self.cuda:
+            torch.cuda.synchronize()
+            torch.cuda.reset_peak_memory_stats()
+
+    def peak(self, row, key):
+        """Adds the peak memory since `reset_peak` to `row` as `key` (CUDA only)."""
+        if self.cuda:
+            row[key] = torch.cuda.max_memory_allocated()
 
 
 def main():
@@ -145,33 +190,43 @@ def main():
     ap.add_argument("--train", action="store_true", help="also time the teacher's training step")
     ap.add_argument("--train-res", type=int, default=128, help="resolution of the training step")
     ap.add_argument("--train-steps", type=int, default=6)
+    ap.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
+    ap.add_argument("--dtype", choices=["f32", "tf32", "bf16"], default="f32")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
     torch.manual_seed(0)
-    model = Backbone(a.width, a.heads, a.patch, a.blocks, a.mlp_ratio)
+    dev = Device(a.device, a.dtype)
+    model = Backbone(a.width, a.heads, a.patch, a.blocks, a.mlp_ratio).to(a.device)
     for res in (int(r) for r in a.res.split(",")):
-        image = torch.rand(1, 3, res, res)
-        source_rays = torch.randn(1, 6, res, res)
-        target_rays = torch.randn(1, 6, res, res)
-        target = torch.rand(1, 3, res, res)
+        image = torch.rand(1, 3, res, res, device=a.device)
+        source_rays = torch.randn(1, 6, res, res, device=a.device)
+        target_rays = torch.randn(1, 6, res, res, device=a.device)
+        target = torch.rand(1, 3, res, res, device=a.device)
         for name in a.models.split(","):
             for block, kind in zip(model.blocks, kinds(name, a.blocks, a.group)):
                 block.attention.kind = kind
 
             def forward():
-                with torch.inference_mode():
+                with torch.inference_mode(), dev.autocast():
                     model(image, source_rays, target_rays)
 
-            row = {"model": name, "res": res, "ms": median_ms(forward, a.warmup, a.iters)}
+            dev.reset_peak()
+            row = {"model": name, "res": res,
+                   "ms": median_ms(forward, a.warmup, a.iters, dev.sync)}
+            dev.peak(row, "peak_mem_bytes")
             if a.train and name == "teacher" and res == a.train_res:
                 opt = torch.optim.AdamW(model.parameters(), lr=1e-4, weight_decay=1e-5)
 
                 def step():
                     opt.zero_grad(set_to_none=True)
-                    F.mse_loss(model(image, source_rays, target_rays), target).backward()
+                    with dev.autocast():
+                        loss = F.mse_loss(model(image, source_rays, target_rays), target)
+                    loss.backward()
                     opt.step()
 
-                row["train_ms"] = median_ms(step, 2, a.train_steps)
+                dev.reset_peak()
+                row["train_ms"] = median_ms(step, 2, a.train_steps, dev.sync)
+                dev.peak(row, "train_peak_mem_bytes")
             print(json.dumps(row), flush=True)
 
 

@@ -8,9 +8,10 @@ use clap::Args;
 use prism_core::BackendKind;
 use prism_data::SynthOptions;
 use prism_losses::ImageScores;
+use prism_model::Precision;
 use prism_remote::{DeviceList, read_token};
 use prism_synth::ensure_synthetic_dataset;
-use prism_train::{Checkpoint, RunOptions, RunSummary};
+use prism_train::{Checkpoint, LossScaleConfig, RunOptions, RunSummary};
 
 /// Where a command's dataset comes from.
 #[derive(Args, Clone, Debug)]
@@ -93,6 +94,17 @@ pub struct RunArgs {
     /// The file holding the token of the servers in --devices [default: $PRISM_TOKEN].
     #[arg(long, value_name = "FILE")]
     pub token_file: Option<PathBuf>,
+    /// The precision the transformer blocks compute in: f32, f16 or bf16. Mixed precision: the
+    /// parameters and AdamW's state stay f32, and the geometry parts, heads and losses compute
+    /// in f32; f16 scales the loss dynamically. Recorded in the checkpoints [default: the
+    /// resumed run's, else f32].
+    #[arg(long, value_name = "f32|f16|bf16")]
+    pub precision: Option<Precision>,
+    /// Dynamic loss scaling (on by default with f16): finite steps in a row after which the
+    /// scale doubles [default: 2000, or the resumed run's]. Given with f32 or bf16, it scales
+    /// their loss too.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub loss_scale_growth: Option<u64>,
     #[command(flatten)]
     pub job: JobArgs,
 }
@@ -122,6 +134,11 @@ impl RunArgs {
             token,
             progress,
             lpips_weights: self.job.lpips_weights.clone(),
+            precision: self.precision,
+            loss_scale: self.loss_scale_growth.map(|n| LossScaleConfig {
+                growth_interval: n as usize,
+                ..LossScaleConfig::default()
+            }),
             ..RunOptions::new(
                 self.out.clone().unwrap_or(default_out),
                 self.data.resolve(synth, progress)?,

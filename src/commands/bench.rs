@@ -54,8 +54,9 @@ struct TableArgs {
     /// Backend: ndarray, flex, wgpu or cuda (the GPU ones need their cargo feature).
     #[arg(long, default_value = "flex")]
     backend: BackendKind,
-    /// Precision of the transformer blocks at inference: f32, f16 or bf16 (the rest of the
-    /// model stays f32).
+    /// Precision of the transformer blocks: f32, f16 or bf16 (the rest of the model stays
+    /// f32). The forward rows store the blocks' weights in it; the training step computes in
+    /// it with f32 master weights (as `train-teacher --precision`).
     #[arg(long, default_value = "f32")]
     precision: Precision,
     /// Untimed runs before timing.
@@ -367,7 +368,7 @@ impl TableArgs {
     }
 
     /// The teacher's training step on this backend: `train_steps` steps of `prism_train::train`
-    /// (one device, no validation), the median of the logged step times after two warm-up
+    /// (one device, no validation, the blocks computing in `--precision`), the median of the logged step times after two warm-up
     /// steps; peak memory over the whole run (model, optimizer, data, steps).
     fn train_step(&self, config: &TrainingConfig) -> anyhow::Result<BenchRow> {
         let mut config = config.clone();
@@ -378,7 +379,10 @@ impl TableArgs {
         config.train.checkpoint_every = steps;
         let data = self.data.resolve(&config.data, true)?;
         let out = std::env::temp_dir().join(format!("prism-bench-train-{}", std::process::id()));
-        let options = RunOptions::new(&out, data, self.backend);
+        let options = RunOptions {
+            precision: Some(self.precision),
+            ..RunOptions::new(&out, data, self.backend)
+        };
         let probe = MemoryProbe::start(&self.backend.device()?);
         let reads = (host_reads(), geometry_host_reads());
         let result = train(&config, &TeacherTask::default(), &options);

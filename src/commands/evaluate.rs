@@ -8,6 +8,7 @@ use clap::Args;
 
 use super::args::{DataArgs, JobArgs};
 use prism_losses::{Lpips, score_paths};
+use prism_model::Precision;
 use prism_train::{EvaluateOptions, evaluate_checkpoint};
 
 /// Evaluate novel view synthesis: PSNR (dB), SSIM and LPIPS.
@@ -53,6 +54,15 @@ pub struct EvaluateArgs {
     /// (source, target) pairs per forward pass.
     #[arg(long, default_value_t = 8, value_name = "N", value_parser = clap::value_parser!(u16).range(1..))]
     batch: u16,
+    /// With --checkpoint: the precision of the transformer blocks, f32, f16 or bf16 (their
+    /// weights cast to it; the rest of the model stays f32).
+    #[arg(
+        long,
+        default_value = "f32",
+        value_name = "f32|f16|bf16",
+        requires = "checkpoint"
+    )]
+    precision: Precision,
     #[command(flatten)]
     job: JobArgs,
 }
@@ -80,6 +90,7 @@ impl EvaluateArgs {
             batch: usize::from(self.batch),
             progress: !self.job.quiet,
             save_predictions: self.save_predictions.clone(),
+            precision: self.precision,
             ..EvaluateOptions::default()
         };
         let (e, files) = evaluate_checkpoint(
@@ -97,14 +108,16 @@ impl EvaluateArgs {
             write_atomic(json, &prism_train::evaluation_json(&e))?;
         }
         println!(
-            "{} subjects x {} views: PSNR {:.3} dB  SSIM {:.4}  LPIPS {:.4}  FPS {:.2} ({})",
+            "{} subjects x {} views: PSNR {:.3} dB  SSIM {:.4}  LPIPS {:.4}  FPS {:.2} ({}, \
+             blocks in {})",
             e.subjects.len(),
             e.views_per_subject,
             e.psnr,
             e.ssim,
             e.lpips,
             e.fps,
-            self.job.backend
+            self.job.backend,
+            self.precision
         );
         if let Some(gs) = &e.gs {
             println!(

@@ -5,16 +5,21 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::Args;
 use prism_core::BackendKind;
+use prism_core::files::write_json;
+use prism_core::phases::{Phase, phase_totals, timed};
 use prism_synth::ensure_synthetic_dataset;
 use prism_train::{
-    PipelineOptions, QuickstartPlan, STUDENT_RUN, TEACHER_RUN, distill_student, quickstart,
-    quickstart_table, remove_run,
+    PHASES_FILE, PipelineOptions, QuickstartPlan, STUDENT_RUN, TEACHER_RUN, distill_student,
+    phase_table, phases_json, quickstart, quickstart_table, remove_run,
 };
 
 /// Run the whole pipeline on the small config: synthesise the default dataset, train the
 /// teacher, distil the student, evaluate both on the held-out people and print PSNR, SSIM,
 /// LPIPS and FPS (with rows for their 3DGS heads' renders I_gs and for the copy-the-source
-/// baseline) and the paths of the reports, sample images and training curves.
+/// baseline) and the paths of the reports, sample images and training curves; then the wall time
+/// of each phase (dataset, data loading, training steps, validation, checkpoints, evaluation
+/// and the LPIPS inside validation and evaluation) for both models, also written to
+/// OUT/phases.json.
 ///
 /// The step counts are scaled down from the config's so the job takes minutes on a 2-core CPU
 /// (flex; 5.8 measured): 300 teacher and 150 student steps, the protocol's 100 target views
@@ -77,12 +82,14 @@ impl QuickstartArgs {
                 "runs/quickstart"
             })
         });
-        let data_start = std::time::Instant::now();
-        let data = ensure_synthetic_dataset(&plan.config.data, !self.quiet)?;
+        let before = phase_totals();
+        let data = timed(Phase::Dataset, || {
+            ensure_synthetic_dataset(&plan.config.data, !self.quiet)
+        })?;
+        let dataset_seconds = phase_totals().since(&before).get(Phase::Dataset);
         eprintln!(
-            "quickstart: dataset {} ready in {:.0} s",
-            data.display(),
-            data_start.elapsed().as_secs_f64()
+            "quickstart: dataset {} ready in {dataset_seconds:.0} s",
+            data.display()
         );
         let options = PipelineOptions {
             out: out.clone(),
@@ -107,6 +114,12 @@ impl QuickstartArgs {
         let report = quickstart(&plan, &options, &distill_student)
             .with_context(|| format!("quickstart into {}", out.display()))?;
         print!("{}", quickstart_table(&report));
+        println!();
+        print!("{}", phase_table(&report, dataset_seconds));
+        let phases = out.join(PHASES_FILE);
+        write_json(&phases, &phases_json(&report, dataset_seconds))
+            .with_context(|| format!("cannot write {}", phases.display()))?;
+        println!("phase timings: {}", phases.display());
         Ok(())
     }
 }

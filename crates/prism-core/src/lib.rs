@@ -1,6 +1,6 @@
 //! The ground every prism crate stands on: cameras and Plücker rays, the paper's viewing
-//! protocol, the run-time backend choice, the count of host reads, atomic file writes and
-//! image conversion.
+//! protocol, the run-time backend choice, the count of host reads, the phase timings, atomic
+//! file writes and image conversion.
 //!
 //! Conventions (shared by every crate of the workspace): metres, world Y-up, subjects stand on
 //! `y = 0` facing +Z; OpenCV cameras (x right, y down, looking along +z) given by pixel
@@ -12,6 +12,7 @@ pub mod camera;
 pub mod camera_record;
 pub mod files;
 pub mod images;
+pub mod phases;
 pub mod progress;
 pub mod protocol;
 pub mod rays;

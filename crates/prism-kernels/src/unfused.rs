@@ -11,10 +11,11 @@ pub fn gelu<const D: usize>(x: Tensor<D>) -> Tensor<D> {
 }
 
 /// LayerNorm without bias over the last dimension (Burn's `layer_norm`), its statistics taken
-/// in f32 for f16 inputs: what Burn's `LayerNorm` module computes.
+/// in f32 for f16 and bf16 inputs (Burn's `LayerNorm` module widens f16 only; bf16's 8-bit
+/// mantissa would round the mean and variance of a row too).
 pub fn layer_norm<const D: usize>(x: Tensor<D>, gamma: Tensor<1>, eps: f64) -> Tensor<D> {
     let dtype = x.dtype();
-    if dtype == DType::F16 {
+    if matches!(dtype, DType::F16 | DType::BF16) {
         burn::tensor::module::layer_norm(x.cast(DType::F32), gamma.cast(DType::F32), None, eps)
             .cast(dtype)
     } else {

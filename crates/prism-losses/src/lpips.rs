@@ -21,6 +21,7 @@ use burn::tensor::activation::relu;
 use burn::tensor::module::max_pool2d;
 use burn::tensor::ops::MaxPoolOptions;
 use burn::tensor::{Device, Tensor};
+use prism_core::phases::{Phase, timed};
 
 use crate::LossError;
 
@@ -192,15 +193,18 @@ impl Lpips {
             .expect("five taps")
     }
 
-    /// Per-image LPIPS as numbers (the metric): [`Lpips::forward`] read back to the host.
+    /// Per-image LPIPS as numbers (the metric): [`Lpips::forward`] read back to the host. Its
+    /// wall time counts as [`Phase::Lpips`].
     pub fn distance(&self, pred: Tensor<4>, gt: Tensor<4>) -> Vec<f64> {
-        self.forward(pred, gt)
-            .into_data()
-            .try_into_vec_as::<f32>()
-            .expect("float tensor data")
-            .into_iter()
-            .map(f64::from)
-            .collect()
+        timed(Phase::Lpips, || {
+            self.forward(pred, gt)
+                .into_data()
+                .try_into_vec_as::<f32>()
+                .expect("float tensor data")
+                .into_iter()
+                .map(f64::from)
+                .collect()
+        })
     }
 
     /// The five ReLU taps of AlexNet's feature extractor.

@@ -195,7 +195,7 @@ impl Prism {
             .chain(self.stage_three.blocks.iter())
     }
 
-    fn blocks_mut(&mut self) -> impl Iterator<Item = &mut PrismBlock> {
+    pub(crate) fn blocks_mut(&mut self) -> impl Iterator<Item = &mut PrismBlock> {
         self.stage_one
             .blocks
             .iter_mut()

@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 
 use burn::module::Module;
 use indicatif::ProgressBar;
+use prism_core::phases::{Phase, timed};
 use prism_data::DatasetReader;
 use prism_losses::{ImageScores, Lpips};
 use prism_model::Prism;
@@ -106,7 +107,7 @@ impl<'a> Cadence<'a> {
     /// The start of a fresh run: logs the copy-the-source baseline and validates the initial
     /// model (step 0).
     fn begin(&mut self, step: &TrainingStep<'_>) -> Result<()> {
-        let baseline = self.validator.copy_source_baseline();
+        let baseline = timed(Phase::Validation, || self.validator.copy_source_baseline());
         self.log.write(&json!({
             "step": 0,
             "copy_source_psnr": baseline.psnr,
@@ -157,8 +158,10 @@ impl<'a> Cadence<'a> {
             self.validate(step.model(), done)?;
         }
         if last || done.is_multiple_of(train.checkpoint_every) {
-            let path =
-                step.save_checkpoint(&self.options.out, self.config, self.options.backend, done)?;
+            let (out, backend) = (&self.options.out, self.options.backend);
+            let path = timed(Phase::Checkpoints, || {
+                step.save_checkpoint(out, self.config, backend, done)
+            })?;
             self.summary.last_checkpoint = Some(path);
         }
         Ok(())
@@ -210,8 +213,13 @@ impl<'a> Cadence<'a> {
     }
 
     /// Validates `model` after `step` steps: the scores, the sample grid and the log line, then
-    /// the training curves.
+    /// the training curves (timed as [`Phase::Validation`]).
     fn validate(&mut self, model: &Prism, step: usize) -> Result<ImageScores> {
+        timed(Phase::Validation, || self.validate_untimed(model, step))
+    }
+
+    /// [`Cadence::validate`]'s work.
+    fn validate_untimed(&mut self, model: &Prism, step: usize) -> Result<ImageScores> {
         let (scores, grid) = self.validator.validate(&model.valid());
         let name = format!("step-{step:08}.png");
         let path = self.samples_dir.join(&name);
@@ -249,7 +257,8 @@ fn refresh_plot(run: &Path, bar: &ProgressBar) -> Option<PathBuf> {
     }
 }
 
-/// The log line of a step: `step`, `loss`, every term, learning rates and gradient norm.
+/// The log line of a step: `step`, `loss`, every term, learning rates, gradient norm and the
+/// loss scale (when the run scales its loss).
 fn step_line(report: &StepReport) -> Value {
     let values = &report.values;
     let mut line = json!({ "step": report.done, "loss": values.total() });
@@ -259,6 +268,9 @@ fn step_line(report: &StepReport) -> Value {
     line["lr"] = json!(report.lr_backbone);
     line["lr_heads"] = json!(report.lr_heads);
     line["grad_norm"] = json!(report.grad_norm);
+    if let Some(scale) = report.loss_scale {
+        line["loss_scale"] = json!(scale);
+    }
     line
 }
 

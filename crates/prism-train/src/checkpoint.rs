@@ -9,7 +9,7 @@
 //! | `attention.json` | each block's attention kind, `["full", "linear", ...]` (not in the weights) |
 //! | `optimizer.bpk` | the AdamW state (Burn's `OptimizerRecord`) |
 //! | `scheduler.bpk` | the learning-rate schedulers' state (Burn's `LrSchedulerRecord`) |
-//! | `state.json` | step, seed (the data order is a pure function of seed and step), counters |
+//! | `state.json` | step, seed (the data order is a pure function of seed and step), counters, precision and loss scale |
 //! | `config.toml` | the full training config of the run |
 //!
 //! A checkpoint is written into `step-NNNNNNNN.partial/` and renamed when complete, so a killed
@@ -24,11 +24,12 @@ use burn::optim::lr_scheduler::LrSchedulerRecord;
 use burn::optim::lr_scheduler::module_lr_scheduler::ModuleLrScheduler;
 use burn::optim::{ModuleOptimizer, OptimizerRecord};
 use burn::tensor::Device;
-use prism_model::{AttentionKind, Prism, PrismConfig};
+use prism_model::{AttentionKind, Precision, Prism, PrismConfig};
 use serde::{Deserialize, Serialize};
 
 use crate::config::TrainingConfig;
 use crate::error::{Result, TrainError};
+use crate::loss_scale::LossScaleState;
 
 /// The folder of a run that holds its checkpoints.
 pub const CHECKPOINTS_DIR: &str = "checkpoints";
@@ -85,6 +86,15 @@ pub struct CheckpointState {
     /// `--init` and in its resumes. Empty (and not written) otherwise.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub new_blocks: Vec<usize>,
+    /// The precision the transformer blocks computed in (`--precision`; the parameters are
+    /// `f32` whatever it is): a resumed run continues in it. Checkpoints written before it was
+    /// recorded were f32.
+    #[serde(default)]
+    pub precision: Precision,
+    /// Where dynamic loss scaling stood (f16 runs; absent when the loss is not scaled): a
+    /// resumed run continues with this scale.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub loss_scale: Option<LossScaleState>,
 }
 
 /// A checkpoint read from disk (its small files; the weights are loaded on demand).
@@ -350,6 +360,8 @@ pub fn save_model_checkpoint(
         devices: 1,
         backend: backend.to_string(),
         new_blocks: new_blocks.to_vec(),
+        precision: Precision::F32,
+        loss_scale: None,
     };
     let optimizer = burn::optim::AdamWConfig::new().init();
     let backbone = crate::schedule::WarmupCosine::new(

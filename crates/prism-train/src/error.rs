@@ -96,6 +96,19 @@ pub enum TrainError {
         /// What was not finite at the last one.
         reason: String,
     },
+    /// The backend cannot compute in the precision asked for.
+    #[error(
+        "the {backend} backend cannot compute in {precision} on this device; use --precision \
+         f32, or a backend that has {precision} (flex has f16 and bf16; wgpu has f16 where the \
+         adapter has it, and bf16 on Metal only: Vulkan gives bf16 conversions and dot products \
+         but no bf16 arithmetic)"
+    )]
+    UnsupportedPrecision {
+        /// The precision asked for.
+        precision: prism_model::Precision,
+        /// The backend.
+        backend: String,
+    },
     /// A plot of the training curves could not be drawn.
     #[error("{path}: cannot draw the plot: {message}")]
     Plot {

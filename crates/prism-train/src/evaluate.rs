@@ -26,7 +26,7 @@ use prism_data::{
     disoccluded_region,
 };
 use prism_losses::{ImageScores, Lpips, psnr_region_filled, score_images, score_region};
-use prism_model::Prism;
+use prism_model::{Precision, Prism};
 use serde::Serialize;
 
 use crate::checkpoint::{CHECKPOINTS_DIR, load_model};
@@ -57,6 +57,9 @@ pub struct EvaluateOptions {
     /// Write every predicted target view as `DIR/SUBJECT/NNN.png` (`NNN` the view index, 3
     /// digits), for scoring against other methods with `evaluate --pred/--gt`.
     pub save_predictions: Option<PathBuf>,
+    /// The precision of the transformer blocks (their weights stored in it, see
+    /// [`Prism::with_block_precision`]); the rest of the model computes in f32.
+    pub precision: Precision,
 }
 
 impl Default for EvaluateOptions {
@@ -68,6 +71,7 @@ impl Default for EvaluateOptions {
             fps_runs: 10,
             progress: false,
             save_predictions: None,
+            precision: Precision::F32,
         }
     }
 }
@@ -133,10 +137,12 @@ pub struct SubjectGrid {
 }
 
 /// Evaluates a checkpoint (a checkpoint folder or a run folder's latest) on the dataset at
-/// `data` on `backend`, and writes the JSON, the report and the grids into `out`.
+/// `data` on `backend`, its blocks in `options.precision`, and writes the JSON, the report and
+/// the grids into `out`.
 ///
 /// # Errors
-/// An unreadable checkpoint, dataset or LPIPS weight file, or I/O errors.
+/// An unreadable checkpoint, dataset or LPIPS weight file, a precision the backend cannot
+/// compute in, or I/O errors.
 pub fn evaluate_checkpoint(
     checkpoint: &Path,
     data: &Path,
@@ -146,7 +152,15 @@ pub fn evaluate_checkpoint(
     options: &EvaluateOptions,
 ) -> Result<(Evaluation, EvaluationFiles)> {
     let device = backend.device()?;
+    let precision = options.precision;
+    if !precision.supported_on(&device) {
+        return Err(TrainError::UnsupportedPrecision {
+            precision,
+            backend: backend.to_string(),
+        });
+    }
     let (model, config) = load_model(checkpoint, &device)?;
+    let model = model.with_block_precision(precision);
     let data_dir = data.to_path_buf();
     let reader = DatasetReader::open(&data_dir)?;
     let lpips = Lpips::load_default(lpips_weights, &device)?;
@@ -154,7 +168,7 @@ pub fn evaluate_checkpoint(
     let (evaluation, grids) =
         evaluate(&model, &reader, resolution, Some(&lpips), &device, options)?;
     let title = format!(
-        "{} on {} ({backend})",
+        "{} on {} ({backend}, blocks in {precision})",
         checkpoint.display(),
         data_dir.display()
     );

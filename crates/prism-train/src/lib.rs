@@ -6,7 +6,9 @@
 //! - Loop: [`train`] prepares the run ([`prepare_run_folder`], [`initial_model`]), then runs a
 //!   [`TrainingStep`] per step (its [`Task`]'s per-device [`StepLoss`], AdamW, the
 //!   [`WarmupCosine`] schedules of the backbone and the [`HEAD_MODULES`], global-norm clipping,
-//!   a non-finite guard, data parallelism through Burn ([`DataParallel`])) followed by its
+//!   a non-finite guard, data parallelism through Burn ([`DataParallel`]); the blocks in f16
+//!   or bf16 with f32 master weights when [`RunOptions::precision`] says so, the loss scaled
+//!   for f16 by a [`LossScaler`]) followed by its
 //!   [`Cadence`]: `metrics.jsonl` ([`MetricsLog`]), validation ([`Validator`]), training
 //!   curves and atomic checkpoints ([`save_checkpoint`], [`Checkpoint`], [`load_model`]).
 //! - Data: [`DataOrder`] makes each step's samples a pure function of (seed, step), so a
@@ -38,6 +40,7 @@ pub mod groups;
 pub mod images;
 pub mod infer;
 pub mod log;
+pub mod loss_scale;
 pub mod parallel;
 pub mod plot;
 pub mod predict;
@@ -80,20 +83,26 @@ pub use infer::{
     sweep_views,
 };
 pub use log::{METRICS_FILE, MetricsLog, read_metrics};
+pub use loss_scale::{LossScaleConfig, LossScaleState, LossScaler};
 pub use parallel::{DataParallel, TrainingDevice, fingerprint, training_devices};
 pub use plot::{PLOT_FILE, PLOT_SIZE, TrainingCurves, plot_metrics, plot_run};
 pub use predict::{Pairs, forward_pairs, inference_model, synthesise};
 pub use quickstart::{
-    PipelineOptions, QuickstartModel, QuickstartPlan, QuickstartReport, STUDENT_RUN, StudentJob,
-    TEACHER_RUN, compress_schedule, quickstart, quickstart_table, remove_run,
+    ModelPhases, PHASES_FILE, PipelineOptions, QuickstartModel, QuickstartPlan, QuickstartReport,
+    STUDENT_RUN, StudentJob, TEACHER_RUN, compress_schedule, phase_table, phases_json, quickstart,
+    quickstart_table, remove_run,
 };
 pub use report::{EvaluationFiles, evaluation_json, markdown_report, write_evaluation};
 pub use schedule::WarmupCosine;
-pub use start::{RUN_CONFIG_FILE, Start, initial_model, prepare_run_folder};
+pub use start::{
+    RUN_CONFIG_FILE, Start, initial_model, loss_scaler, prepare_run_folder, run_precision,
+};
 pub use step::{Prediction, StepLoss, StepValues, TRAINEE_FIELD, TrainItem, Trainee};
 pub use student::{StudentLoss, StudentTask, distill_student, kinds_letters, student_config};
 pub use tally::{AngleBin, MeanScores, MethodScores, PerAngle, Tally};
 pub use teacher::{TeacherLoss, TeacherTask};
 pub use trainer::{RunOptions, RunSummary, Task, TaskData, train};
-pub use training_step::{Skipped, StepReport, TrainingStep};
+pub use training_step::{
+    GRADIENT_OVERFLOW, NON_FINITE_GRADIENT, NON_FINITE_LOSS, Skipped, StepReport, TrainingStep,
+};
 pub use validate::{Validator, validation_views};

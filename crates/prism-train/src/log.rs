@@ -1,7 +1,8 @@
 //! `metrics.jsonl`: one JSON object per line, per training step, validation and baseline.
 //!
 //! - a step: `{"step", "loss", <every loss term by name>, "lr", "lr_heads", "grad_norm",
-//!   "seconds"}` (`step` counts steps done, from 1);
+//!   "seconds"}` (`step` counts steps done, from 1), and `"loss_scale"` (the factor of the
+//!   step's loss in its backward pass) when the run scales its loss (f16);
 //! - a skipped step: `{"step", "skipped": true, "reason", "loss", "grad_norm", "lr", ...}`;
 //! - a validation: `{"step", "val_psnr", "val_ssim", "val_lpips", "samples"}` (step 0 is the
 //!   initial model);

@@ -1,7 +1,8 @@
 //! `prism quickstart`: the whole pipeline on the shipped configs in one command. Synthesises
 //! the default dataset, trains the teacher, distils the student from it, evaluates both and
 //! tabulates PSNR, SSIM, LPIPS and FPS, beside the scores of their 3DGS heads' renders `I_gs`
-//! and of the "copy the source view" baseline.
+//! and of the "copy the source view" baseline. Where each model's training and evaluation spent
+//! their time ([`prism_core::phases`]) is in its [`ModelPhases`], tabulated by [`phase_table`].
 //!
 //! The step counts are scaled down from the configs' so the whole job fits a time budget on a
 //! 2-core CPU ([`QuickstartPlan::standard`]: the small config, 5.8 minutes measured;
@@ -13,7 +14,9 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use prism_core::BackendKind;
+use prism_core::phases::{Phase, PhaseTimes, phase_totals, timed};
 use prism_losses::{NO_VALUE, ScoreTable};
+use serde_json::{Map, Value, json};
 
 use crate::checkpoint::list_checkpoints;
 use crate::config::TrainingConfig;
@@ -32,6 +35,10 @@ pub const TINY_CONFIG: &str = include_str!("../../../configs/tiny.toml");
 pub const TEACHER_RUN: &str = "teacher";
 /// The student's run folder inside a quickstart's folder.
 pub const STUDENT_RUN: &str = "student";
+
+/// The phase timings' file (the JSON of [`phases_json`]) `prism quickstart` writes into its
+/// folder.
+pub const PHASES_FILE: &str = "phases.json";
 
 /// People in the `--fast` plan's synthetic dataset.
 pub const FAST_SUBJECTS: usize = 30;
@@ -179,10 +186,49 @@ pub struct QuickstartModel {
     /// Wall-clock seconds this call spent training it (0 for a finished run found in the
     /// folder and kept).
     pub train_seconds: f64,
+    /// Where this call's training and evaluation of it spent their time.
+    pub phases: ModelPhases,
     /// The evaluation.
     pub evaluation: Evaluation,
     /// The evaluation's files (JSON, report, grids).
     pub files: EvaluationFiles,
+}
+
+/// Where the training and the evaluation of one quick start model spent their wall time
+/// ([`prism_core::phases`]; a finished run kept has no training phases).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ModelPhases {
+    /// The training run's phases: data loading, steps, validation (with its LPIPS),
+    /// checkpoints.
+    pub training: PhaseTimes,
+    /// The evaluation's phases: the evaluation, and the LPIPS inside it.
+    pub evaluation: PhaseTimes,
+    /// Wall-clock seconds of the training and the evaluation together.
+    pub wall_seconds: f64,
+}
+
+impl ModelPhases {
+    /// The rows of the phase table: `(JSON key, label, seconds)`. The LPIPS rows are parts of
+    /// the row above them; `other` is the wall time no phase covers (building the model,
+    /// loading LPIPS and the validation views, the metrics log).
+    pub fn rows(&self) -> Vec<(&'static str, &'static str, f64)> {
+        let (t, e) = (&self.training, &self.evaluation);
+        let covered = t.top_level_seconds() + e.top_level_seconds();
+        vec![
+            (
+                "data_wait",
+                "data loading (step waits for the prefetcher)",
+                t.get(Phase::DataWait),
+            ),
+            ("steps", "training steps", t.get(Phase::Steps)),
+            ("validation", "validation", t.get(Phase::Validation)),
+            ("validation_lpips", "- of which LPIPS", t.get(Phase::Lpips)),
+            ("checkpoints", "checkpoints", t.get(Phase::Checkpoints)),
+            ("evaluation", "evaluation", e.get(Phase::Evaluation)),
+            ("evaluation_lpips", "- of which LPIPS", e.get(Phase::Lpips)),
+            ("other", "setup and the rest", self.wall_seconds - covered),
+        ]
+    }
 }
 
 /// What a quickstart did.
@@ -219,26 +265,37 @@ pub fn quickstart(
         progress: options.progress,
         ..EvaluateOptions::default()
     };
-    let evaluate_run = |run: &Path, steps: usize, seconds: f64| -> Result<QuickstartModel> {
-        let (evaluation, files) = evaluate_checkpoint(
-            run,
-            &data_dir,
-            &run.join("evaluation"),
-            options.backend,
-            options.lpips_weights.as_deref(),
-            &eval,
-        )?;
+    // Evaluates the model trained in `run` since `t0` (this thread's phase totals `before`).
+    let evaluate_run = |run: &Path, steps: usize, t0: Instant, before: PhaseTimes| -> Result<_> {
+        let train_seconds = t0.elapsed().as_secs_f64();
+        let training = phase_totals().since(&before);
+        let (evaluation, files) = timed(Phase::Evaluation, || {
+            evaluate_checkpoint(
+                run,
+                &data_dir,
+                &run.join("evaluation"),
+                options.backend,
+                options.lpips_weights.as_deref(),
+                &eval,
+            )
+        })?;
+        let phases = ModelPhases {
+            training,
+            evaluation: phase_totals().since(&before).since(&training),
+            wall_seconds: t0.elapsed().as_secs_f64(),
+        };
         Ok(QuickstartModel {
             run: run.to_path_buf(),
             steps,
-            train_seconds: seconds,
+            train_seconds,
+            phases,
             evaluation,
             files,
         })
     };
 
     let teacher_dir = options.out.join(TEACHER_RUN);
-    let t0 = Instant::now();
+    let (t0, before) = (Instant::now(), phase_totals());
     let teacher_run = continue_run(&teacher_dir, plan.teacher_steps, options)?;
     let teacher_trained = teacher_run.is_some();
     if let Some(run) = teacher_run {
@@ -247,7 +304,7 @@ pub fn quickstart(
         };
         train(&plan.config, &task, &run)?;
     }
-    let teacher = evaluate_run(&teacher_dir, plan.teacher_steps, t0.elapsed().as_secs_f64())?;
+    let teacher = evaluate_run(&teacher_dir, plan.teacher_steps, t0, before)?;
 
     let student_dir = options.out.join(STUDENT_RUN);
     if teacher_trained {
@@ -256,11 +313,11 @@ pub fn quickstart(
     }
     let mut student_config = plan.config.clone();
     compress_schedule(&mut student_config, plan.student_steps);
-    let t0 = Instant::now();
+    let (t0, before) = (Instant::now(), phase_totals());
     if let Some(run) = continue_run(&student_dir, plan.student_steps, options)? {
         student_job(&student_config, &teacher_dir, &run)?;
     }
-    let student = evaluate_run(&student_dir, plan.student_steps, t0.elapsed().as_secs_f64())?;
+    let student = evaluate_run(&student_dir, plan.student_steps, t0, before)?;
     Ok(QuickstartReport {
         data_dir,
         teacher,
@@ -310,6 +367,60 @@ pub fn quickstart_table(report: &QuickstartReport) -> String {
         report.wall_seconds / 60.0
     );
     out
+}
+
+/// The quick start's phase table (Markdown): seconds per phase for the teacher, the student
+/// and both, after the `dataset_seconds` the caller spent synthesising or finding the dataset;
+/// the last row is the wall time (the whole quick start's, the dataset's included, in the last
+/// column). The rows other than the LPIPS ones add up to the wall time.
+pub fn phase_table(report: &QuickstartReport, dataset_seconds: f64) -> String {
+    let seconds = |s: f64| format!("{s:.1}");
+    let mut out = String::from("| phase | teacher (s) | student (s) | total (s) |\n");
+    out.push_str("|---|---:|---:|---:|\n");
+    let _ = writeln!(
+        out,
+        "| dataset (synthesis or cache) | - | - | {} |",
+        seconds(dataset_seconds)
+    );
+    let (teacher, student) = (report.teacher.phases, report.student.phases);
+    for ((_, label, t), (_, _, s)) in teacher.rows().into_iter().zip(student.rows()) {
+        let _ = writeln!(
+            out,
+            "| {label} | {} | {} | {} |",
+            seconds(t),
+            seconds(s),
+            seconds(t + s)
+        );
+    }
+    let _ = writeln!(
+        out,
+        "| wall time | {} | {} | {} |",
+        seconds(teacher.wall_seconds),
+        seconds(student.wall_seconds),
+        seconds(dataset_seconds + report.wall_seconds)
+    );
+    out
+}
+
+/// The phase table as JSON: `dataset_seconds`, `wall_seconds` (the whole quick start's) and per
+/// model (`teacher`, `student`) the seconds of each row of [`ModelPhases::rows`] and its
+/// `wall_seconds`.
+pub fn phases_json(report: &QuickstartReport, dataset_seconds: f64) -> Value {
+    let model = |phases: &ModelPhases| {
+        let mut fields: Map<String, Value> = phases
+            .rows()
+            .into_iter()
+            .map(|(key, _, s)| (key.to_string(), json!(s)))
+            .collect();
+        fields.insert("wall_seconds".into(), json!(phases.wall_seconds));
+        Value::Object(fields)
+    };
+    json!({
+        "dataset_seconds": dataset_seconds,
+        "wall_seconds": dataset_seconds + report.wall_seconds,
+        "teacher": model(&report.teacher.phases),
+        "student": model(&report.student.phases),
+    })
 }
 
 #[cfg(test)]

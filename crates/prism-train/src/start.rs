@@ -7,13 +7,14 @@ use std::path::Path;
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::tensor::{Device, Tensor};
 use prism_core::backend::is_served;
-use prism_model::Prism;
+use prism_model::{Precision, Prism};
 
 use crate::checkpoint::{
     Checkpoint, check_architecture, check_resumable, latest_checkpoint, remove_partial_checkpoints,
 };
 use crate::config::TrainingConfig;
 use crate::error::{Result, TrainError};
+use crate::loss_scale::{LossScaleConfig, LossScaleState, LossScaler};
 use crate::trainer::{RunOptions, Task};
 
 /// The run folder's copy of the config it was started with.
@@ -28,6 +29,10 @@ pub struct Start {
     /// The blocks newly initialised when the model was made from a pretrained backbone (see
     /// [`crate::CheckpointState::new_blocks`]).
     pub new_blocks: Vec<usize>,
+    /// The precision the model's transformer blocks compute in (its parameters are `f32`).
+    pub precision: Precision,
+    /// Dynamic loss scaling, where the run scales its loss ([`loss_scaler`]).
+    pub loss_scale: Option<LossScaler>,
 }
 
 /// Checks the run folder against the options (a fresh run needs a folder without checkpoints,
@@ -90,31 +95,103 @@ pub fn prepare_run_folder(
 
 /// The model to start from, its step and its newly initialised blocks (which train at
 /// `lr_heads`, see [`CheckpointState::new_blocks`](crate::CheckpointState::new_blocks)): the
-/// resumed checkpoint's, `--init`'s weights, or a fresh initialisation seeded by `train.seed`.
+/// resumed checkpoint's, `--init`'s weights, or a fresh initialisation seeded by `train.seed`;
+/// its blocks computing in the run's precision ([`run_precision`]), with its loss scaling.
 ///
 /// # Errors
-/// Unreadable weights, or an `--init` checkpoint of another architecture.
+/// Unreadable weights, an `--init` checkpoint of another architecture, a precision that
+/// differs from the resumed run's or that `device` cannot compute in.
 pub fn initial_model(
     config: &TrainingConfig,
     resumed: Option<&Checkpoint>,
     options: &RunOptions,
     device: &Device,
 ) -> Result<Start> {
-    if let Some(checkpoint) = resumed {
-        return Ok(Start {
-            model: checkpoint.load_model(device)?,
-            step: checkpoint.state.step,
-            new_blocks: checkpoint.state.new_blocks.clone(),
+    let precision = run_precision(options, resumed)?;
+    if !precision.supported_on(device) {
+        return Err(TrainError::UnsupportedPrecision {
+            precision,
+            backend: options.backend.to_string(),
         });
+    }
+    let loss_scale = loss_scaler(
+        precision,
+        options.loss_scale,
+        resumed.and_then(|c| c.state.loss_scale),
+    );
+    let (model, step, new_blocks) = initial_weights(config, resumed, options, device)?;
+    Ok(Start {
+        model: model.with_compute_precision(precision),
+        step,
+        new_blocks,
+        precision,
+        loss_scale,
+    })
+}
+
+/// The precision of a run: the resumed checkpoint's, else `options.precision` (f32 when not
+/// given).
+///
+/// # Errors
+/// [`TrainError::ConfigMismatch`] when `options.precision` differs from the resumed run's: a
+/// run continues in the precision it was trained in.
+pub fn run_precision(options: &RunOptions, resumed: Option<&Checkpoint>) -> Result<Precision> {
+    match (resumed, options.precision) {
+        (Some(c), Some(asked)) if asked != c.state.precision => Err(TrainError::ConfigMismatch {
+            path: c.dir.clone(),
+            what: format!(
+                "precision: {} in the checkpoint, {asked} from --precision",
+                c.state.precision
+            ),
+        }),
+        (Some(c), _) => Ok(c.state.precision),
+        (None, asked) => Ok(asked.unwrap_or_default()),
+    }
+}
+
+/// The loss scaling of a run computing in `precision`: with `asked` (the run's options), the
+/// scaling they set, continuing `resumed`'s scale when there is one; without, the resumed
+/// run's own scaling, or for a fresh f16 run the defaults ([`LossScaleConfig::default`]).
+/// `None`: the loss is not scaled (f32 and bf16 by default).
+pub fn loss_scaler(
+    precision: Precision,
+    asked: Option<LossScaleConfig>,
+    resumed: Option<LossScaleState>,
+) -> Option<LossScaler> {
+    match (asked, resumed) {
+        (None, Some(state)) => Some(LossScaler::restored(state)),
+        (Some(config), Some(state)) => Some(LossScaler::restored(LossScaleState {
+            growth_interval: config.growth_interval,
+            ..state
+        })),
+        (Some(config), None) => Some(LossScaler::new(config)),
+        (None, None) => (precision == Precision::F16).then(|| LossScaler::new(Default::default())),
+    }
+}
+
+/// The weights a run starts from, with its step and newly initialised blocks (see
+/// [`initial_model`]).
+fn initial_weights(
+    config: &TrainingConfig,
+    resumed: Option<&Checkpoint>,
+    options: &RunOptions,
+    device: &Device,
+) -> Result<(Prism, usize, Vec<usize>)> {
+    if let Some(checkpoint) = resumed {
+        return Ok((
+            checkpoint.load_model(device)?,
+            checkpoint.state.step,
+            checkpoint.state.new_blocks.clone(),
+        ));
     }
     if let Some(init) = &options.init {
         let checkpoint = Checkpoint::read(init)?;
         check_architecture(&checkpoint, &config.model)?;
-        return Ok(Start {
-            model: checkpoint.load_model(device)?,
-            step: 0,
-            new_blocks: checkpoint.state.new_blocks.clone(),
-        });
+        return Ok((
+            checkpoint.load_model(device)?,
+            0,
+            checkpoint.state.new_blocks.clone(),
+        ));
     }
     // A served main device is initialised on this machine and sent: the same weights as a
     // local run, whatever the server's random generator.
@@ -125,16 +202,13 @@ pub fn initial_model(
     };
     host.seed(config.train.seed);
     let model = config.model.init(&host);
-    Ok(Start {
-        model: if host == *device {
-            model
-        } else {
-            initialized(&model);
-            model.fork(device)
-        },
-        step: 0,
-        new_blocks: Vec::new(),
-    })
+    let model = if host == *device {
+        model
+    } else {
+        initialized(&model);
+        model.fork(device)
+    };
+    Ok((model, 0, Vec::new()))
 }
 
 /// Draws every lazily initialised parameter of `model` now, on its device: Burn initialises a

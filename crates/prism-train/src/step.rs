@@ -48,6 +48,9 @@ pub struct TrainItem {
     /// pass, so that the gradients summed over the devices are the gradient of the mean loss of
     /// the whole batch.
     pub weight: f64,
+    /// The factor of the loss in the backward pass (dynamic loss scaling, 1 without): the
+    /// gradients come back multiplied by it, and the training step divides them by it.
+    pub loss_scale: f64,
     /// The training step (0-based).
     pub step: usize,
     /// The share's index in the step (its device's index): shares are summed in this order, so
@@ -101,7 +104,8 @@ impl TrainStep for Trainee {
     type Input = TrainItem;
     type Output = StepValues;
 
-    /// Forward, loss and backward on one device's share: `grad((weight * L).backward())`.
+    /// Forward, loss and backward on one device's share:
+    /// `grad((weight * loss_scale * L).backward())` (the values reported unscaled).
     fn step(&self, item: TrainItem) -> TrainOutput<StepValues> {
         let terms = item.loss.loss(&self.prism, &item.batch, item.step);
         let values = StepValues {
@@ -112,7 +116,15 @@ impl TrainStep for Trainee {
                 .collect(),
             share: item.share,
         };
-        let grads = terms.total.mul_scalar(item.weight).backward();
+        let total = terms.total.mul_scalar(item.weight);
+        // A separate product by the scale (a power of two) keeps the scaled gradients exactly
+        // `loss_scale` times the unscaled ones.
+        let total = if item.loss_scale == 1.0 {
+            total
+        } else {
+            total.mul_scalar(item.loss_scale)
+        };
+        let grads = total.backward();
         TrainOutput::new(self, grads, values)
     }
 }

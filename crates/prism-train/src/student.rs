@@ -145,7 +145,8 @@ impl Task for StudentTask {
                 })?;
             let model = Checkpoint::read(&self.teacher)?
                 .load_model(&device.clone().inner())?
-                .valid();
+                .valid()
+                .with_block_precision(data.precision);
             Some(FrozenTeacher { model, layers })
         };
         Ok(Arc::new(StudentLoss {
@@ -280,6 +281,7 @@ mod tests {
         let device = BackendKind::Ndarray.device().unwrap().autodiff();
         let data = TaskData {
             background: [1.0; 3],
+            precision: prism_model::Precision::F32,
         };
         let missing = std::env::temp_dir().join("prism-no-such-teacher");
         let loss = |config: &TrainingConfig| {

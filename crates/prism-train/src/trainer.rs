@@ -13,9 +13,10 @@ use std::time::Instant;
 use burn::tensor::Device;
 use prism_core::BackendKind;
 use prism_core::backend::is_served;
+use prism_core::phases::{Phase, timed};
 use prism_data::{DatasetReader, SampleDataset};
 use prism_losses::ImageScores;
-use prism_model::Prism;
+use prism_model::{Precision, Prism};
 use prism_remote::{DeviceList, dataset_digest};
 use serde_json::Value;
 
@@ -23,6 +24,7 @@ use crate::cadence::Cadence;
 use crate::config::TrainingConfig;
 use crate::data::{DataOrder, Prefetcher};
 use crate::error::{Result, TrainError};
+use crate::loss_scale::LossScaleConfig;
 use crate::parallel::{fingerprint, training_devices};
 use crate::served::guarded;
 use crate::start::{initial_model, prepare_run_folder};
@@ -56,12 +58,15 @@ pub trait Task {
     }
 }
 
-/// What a [`Task`] learns about the training data when its objective is built.
+/// What a [`Task`] learns about the training data and the run when its objective is built.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TaskData {
     /// The dataset's background colour, RGB in `[0, 1]` (`dataset.json`): what the 3DGS head
     /// composites its render over.
     pub background: [f32; 3],
+    /// The precision the trained model's blocks compute in: a model the objective runs
+    /// besides (distillation's frozen teacher) computes in it too.
+    pub precision: Precision,
 }
 
 /// How to run: the command line's choices.
@@ -87,11 +92,19 @@ pub struct RunOptions {
     pub progress: bool,
     /// LPIPS weight file (default: the project's search order).
     pub lpips_weights: Option<PathBuf>,
+    /// The precision the transformer blocks compute in (the parameters and the optimizer
+    /// state stay `f32`; see [`prism_model::Prism::with_compute_precision`]); `None`: the
+    /// resumed run's, f32 for a fresh one. Recorded in checkpoints.
+    pub precision: Option<Precision>,
+    /// Dynamic loss scaling (see [`crate::loss_scale`]); `None`: on with the defaults for f16
+    /// (a resumed run continues its own), off for f32 and bf16. `Some`: on with these
+    /// settings, whatever the precision.
+    pub loss_scale: Option<LossScaleConfig>,
 }
 
 impl RunOptions {
     /// Options for a fresh run into `out` on the dataset `data` on `backend`, one device, no
-    /// progress bar.
+    /// progress bar, the precision's default loss scaling (f32 unless resuming).
     pub fn new(out: impl Into<PathBuf>, data: impl Into<PathBuf>, backend: BackendKind) -> Self {
         Self {
             out: out.into(),
@@ -104,6 +117,8 @@ impl RunOptions {
             token: None,
             progress: false,
             lpips_weights: None,
+            precision: None,
+            loss_scale: None,
         }
     }
 }
@@ -187,17 +202,18 @@ pub fn train(config: &TrainingConfig, task: &dyn Task, options: &RunOptions) -> 
     }
     let data = TaskData {
         background: reader.meta().background,
+        precision: start.precision,
     };
     let served = devices.iter().map(|d| d.loads_shares).collect();
     let mut step = TrainingStep::new(&config, start, resumed.as_ref(), task, &data, devices)?;
     let mut cadence = Cadence::start(&config, options, task, &reader, &step, resumed.as_ref())?;
     let mut prefetcher = prefetch(train_set, &config, first, served);
-    while let Some((index, shares)) = prefetcher.next_step() {
+    while let Some((index, shares)) = timed(Phase::DataWait, || prefetcher.next_step()) {
         let began = Instant::now();
         let shares = shares?;
         cadence.prepared(index, step.prepare(index))?;
         guarded(&options.devices, || {
-            let report = step.run(index, shares)?;
+            let report = timed(Phase::Steps, || step.run(index, shares))?;
             cadence.after_step(&step, &report, began.elapsed().as_secs_f64())
         })?;
     }

@@ -1,7 +1,8 @@
 //! One optimisation step of a run, the same for every job: the step's samples split into one
-//! share per device, the data-parallel forward and backward of the job's objective, global-norm
-//! clipping, the non-finite guard, and AdamW with the warm-up + cosine schedules of the
-//! backbone and the heads. What a job adds is its [`Task`]: the objective of each device and
+//! share per device, the data-parallel forward and backward of the job's objective (its loss
+//! scaled when the blocks compute in f16, see [`crate::loss_scale`]), global-norm clipping,
+//! the non-finite guard, and AdamW with the warm-up + cosine schedules of the backbone and the
+//! heads. What a job adds is its [`Task`]: the objective of each device and
 //! what it does to the model before a step.
 
 use std::path::{Path, PathBuf};
@@ -12,7 +13,7 @@ use burn::optim::{AdamWConfig, ModuleOptimizer};
 use burn::tensor::Device;
 use prism_core::BackendKind;
 use prism_data::{PrismBatch, PrismBatcher};
-use prism_model::Prism;
+use prism_model::{Precision, Prism};
 use prism_remote::ShardRequest;
 use serde_json::Value;
 
@@ -20,11 +21,12 @@ use crate::checkpoint::{
     CHECKPOINT_FORMAT, CHECKPOINT_VERSION, Checkpoint, CheckpointContents, CheckpointState,
     save_checkpoint,
 };
-use crate::clip::clip_global_norm;
+use crate::clip::{clip_global_norm, scale_gradients};
 use crate::config::TrainingConfig;
 use crate::data::Share;
 use crate::error::Result;
 use crate::groups::learning_rates_with;
+use crate::loss_scale::{LossScaler, ScaleChange};
 use crate::parallel::{DataParallel, TrainingDevice};
 use crate::schedule::WarmupCosine;
 use crate::start::Start;
@@ -49,8 +51,11 @@ pub struct StepReport {
     pub lr_backbone: f64,
     /// The heads' learning rate of the step.
     pub lr_heads: f64,
-    /// The global gradient norm before clipping.
+    /// The global gradient norm before clipping (of the unscaled gradient).
     pub grad_norm: f64,
+    /// The factor of the step's loss in its backward pass (dynamic loss scaling); `None` when
+    /// the run does not scale its loss.
+    pub loss_scale: Option<f64>,
     /// Why the step was skipped (its loss or gradient not finite); `None` when the optimizer
     /// stepped.
     pub skipped: Option<Skipped>,
@@ -59,13 +64,23 @@ pub struct StepReport {
 /// A step skipped by the non-finite guard.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Skipped {
-    /// `"non-finite loss"` or `"non-finite gradient"`.
+    /// [`NON_FINITE_LOSS`], [`NON_FINITE_GRADIENT`] or [`GRADIENT_OVERFLOW`].
     pub reason: &'static str,
     /// Non-finite steps in a row, this one included.
     pub in_row: usize,
-    /// Whether `in_row` reached `train.max_non_finite_steps`: the run stops.
+    /// Whether `in_row` reached `train.max_non_finite_steps` on a step the loss scale could
+    /// not absorb: the run stops.
     pub fatal: bool,
 }
+
+/// [`Skipped::reason`] of a step whose loss is not finite.
+pub const NON_FINITE_LOSS: &str = "non-finite loss";
+/// [`Skipped::reason`] of a step whose gradient is not finite.
+pub const NON_FINITE_GRADIENT: &str = "non-finite gradient";
+/// [`Skipped::reason`] of a step whose scaled gradient overflowed (in f16): the loss scale was
+/// halved ([`crate::loss_scale`]), which is how dynamic scaling finds its scale, so such steps
+/// do not stop the run.
+pub const GRADIENT_OVERFLOW: &str = "gradient overflow, loss scale halved";
 
 /// The non-finite guard's counters (kept in checkpoints, so a resumed run counts on).
 #[derive(Clone, Copy, Debug)]
@@ -77,12 +92,17 @@ struct NonFiniteGuard {
 
 impl NonFiniteGuard {
     /// Counts a step of `loss` and `grad_norm`: `None` when both are finite (the counter of
-    /// steps in a row is reset), else why the step is skipped.
-    fn check(&mut self, loss: f64, grad_norm: f64) -> Option<Skipped> {
+    /// steps in a row is reset), else why the step is skipped. `absorbed`: the loss scale was
+    /// halved for this step's non-finite gradient (never fatal).
+    fn check(&mut self, loss: f64, grad_norm: f64, absorbed: bool) -> Option<Skipped> {
         let reason = if !loss.is_finite() {
-            "non-finite loss"
+            NON_FINITE_LOSS
         } else if !grad_norm.is_finite() {
-            "non-finite gradient"
+            if absorbed {
+                GRADIENT_OVERFLOW
+            } else {
+                NON_FINITE_GRADIENT
+            }
         } else {
             self.in_row = 0;
             return None;
@@ -92,7 +112,7 @@ impl NonFiniteGuard {
         Some(Skipped {
             reason,
             in_row: self.in_row,
-            fatal: self.in_row >= self.max_in_row,
+            fatal: !absorbed && self.in_row >= self.max_in_row,
         })
     }
 }
@@ -113,14 +133,19 @@ pub struct TrainingStep<'a> {
     grad_clip_norm: f64,
     guard: NonFiniteGuard,
     new_blocks: Vec<usize>,
+    /// The precision the blocks compute in (recorded in checkpoints).
+    precision: Precision,
+    /// Dynamic loss scaling; `None`: the loss is not scaled.
+    scaler: Option<LossScaler>,
     /// What a served device's share is asked for with (its items left empty).
     shard: ShardRequest,
 }
 
 impl<'a> TrainingStep<'a> {
-    /// The step of `task` with `config`, from `start` (with the optimizer and scheduler state
-    /// of `resumed`, when resuming), on `devices` (the first is the main device, where `start`'s
-    /// model is); each device's objective is built here.
+    /// The step of `task` with `config`, from `start` (its model, precision and loss scaling;
+    /// with the optimizer and scheduler state of `resumed`, when resuming), on `devices` (the
+    /// first is the main device, where `start`'s model is); each device's objective is built
+    /// here.
     ///
     /// # Errors
     /// Unreadable optimizer or scheduler state; an objective that cannot be built.
@@ -176,6 +201,8 @@ impl<'a> TrainingStep<'a> {
                 max_in_row: train.max_non_finite_steps,
             },
             new_blocks: start.new_blocks,
+            precision: start.precision,
+            scaler: start.loss_scale,
             shard: ShardRequest {
                 targets: train.targets_per_sample,
                 resolution: config.model.resolution as u32,
@@ -217,17 +244,31 @@ impl<'a> TrainingStep<'a> {
     }
 
     /// Step `step` (0-based) on `shares` (one per device, see [`crate::data::share_ranges`]):
-    /// forward and backward on every device, clipping, and the optimizer's step unless the
-    /// loss or the gradient is not finite.
+    /// forward and backward on every device (of the loss times the loss scale, the gradients
+    /// divided by it after), clipping, and the optimizer's step unless the loss or the
+    /// gradient is not finite; then the loss scale's update.
     ///
     /// # Errors
     /// A worker failure, or a server that cannot load its share.
     pub fn run(&mut self, step: usize, shares: Vec<Share>) -> Result<StepReport> {
         let lr = self.scheduler.step();
-        let shares = self.items(shares, step)?;
+        let loss_scale = self.scaler.as_ref().map(LossScaler::scale);
+        let shares = self.items(shares, step, loss_scale.unwrap_or(1.0))?;
         let (grads, values) = self.parallel.forward_backward(self.trainee(), shares)?;
+        // The scale is a power of two: dividing by it is exact.
+        let grads = match loss_scale {
+            Some(scale) if scale != 1.0 => scale_gradients(self.trainee(), grads, 2.0 / scale),
+            _ => grads,
+        };
         let (grads, grad_norm) = clip_global_norm(self.trainee(), grads, self.grad_clip_norm);
-        let skipped = self.guard.check(values.total(), grad_norm);
+        // A non-finite loss is the forward pass's, which no scale of the backward pass helps.
+        let change = self
+            .scaler
+            .as_mut()
+            .filter(|_| values.total().is_finite())
+            .map(|s| s.update(grad_norm.is_finite()));
+        let absorbed = change == Some(ScaleChange::Halved);
+        let skipped = self.guard.check(values.total(), grad_norm, absorbed);
         if skipped.is_none()
             && let Some(trainee) = self.trainee.take()
         {
@@ -239,14 +280,15 @@ impl<'a> TrainingStep<'a> {
             lr_backbone: self.backbone.lr_at(step),
             lr_heads: self.heads.lr_at(step),
             grad_norm,
+            loss_scale,
             skipped,
         })
     }
 
     /// The step's shares as the devices' training items, each batched on its device (by its
     /// server, for a device that loads its own share) and weighted by its fraction of the
-    /// pairs.
-    fn items(&self, shares: Vec<Share>, step: usize) -> Result<Vec<TrainItem>> {
+    /// pairs, their losses to be scaled by `loss_scale` in the backward pass.
+    fn items(&self, shares: Vec<Share>, step: usize, loss_scale: f64) -> Result<Vec<TrainItem>> {
         let devices = self.parallel.devices();
         let pairs: usize = shares.iter().map(Share::pairs).sum();
         shares
@@ -270,6 +312,7 @@ impl<'a> TrainingStep<'a> {
                     batch,
                     loss: self.losses[i].clone(),
                     weight,
+                    loss_scale,
                     step,
                     share: i,
                 })
@@ -301,6 +344,8 @@ impl<'a> TrainingStep<'a> {
             devices: self.parallel.devices().len(),
             backend: backend.to_string(),
             new_blocks: self.new_blocks.clone(),
+            precision: self.precision,
+            loss_scale: self.scaler.as_ref().map(LossScaler::state),
         };
         let contents = CheckpointContents {
             state: &state,

@@ -1,14 +1,16 @@
 //! The quickstart's orchestration on a shrunken plan (32 px, a few steps, ndarray): dataset,
-//! teacher, student job, both evaluations and the table. The student job here fine-tunes the
-//! teacher's weights with the teacher's objective (`prism distill-student` is the real one).
-//! Then the same quickstart killed at several points and run again: it continues.
+//! teacher, student job, both evaluations, the table and the phase timings. The student job
+//! here fine-tunes the teacher's weights with the teacher's objective (`prism distill-student`
+//! is the real one). Then the same quickstart killed at several points and run again: it
+//! continues.
 
 mod common;
 
 use common::{fine_tune_student, shrunken_quickstart};
 use std::path::Path;
 
-use prism_train::{list_checkpoints, quickstart, quickstart_table};
+use prism_core::phases::Phase;
+use prism_train::{list_checkpoints, phase_table, quickstart, quickstart_table};
 
 #[test]
 fn quickstart_trains_evaluates_both_models_and_tabulates() {
@@ -56,6 +58,17 @@ fn quickstart_trains_evaluates_both_models_and_tabulates() {
         "{table}"
     );
     assert!(table.contains("student report: "), "{table}");
+    // Where the time went: steps and evaluation measured, nothing counted twice.
+    for model in [&report.teacher, &report.student] {
+        let phases = &model.phases;
+        let rows = phases.rows();
+        assert!(rows.iter().all(|&(_, _, s)| s >= 0.0), "{rows:?}");
+        let steps = rows.iter().find(|r| r.0 == "steps").unwrap().2;
+        assert!(steps > 0.0 && phases.evaluation.get(Phase::Evaluation) > 0.0);
+        assert!(phases.wall_seconds <= report.wall_seconds);
+    }
+    let phase_table = phase_table(&report, 0.0);
+    assert!(phase_table.contains("| training steps | "), "{phase_table}");
 
     let (teacher, student) = (root.join("out/teacher"), root.join("out/student"));
     // Run again: both finished runs are kept, not trained again.

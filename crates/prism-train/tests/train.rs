@@ -4,7 +4,7 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex, MutexGuard, OnceLock};
+use std::sync::Arc;
 
 use burn::tensor::Device;
 use prism_core::BackendKind;
@@ -15,26 +15,12 @@ use prism_model::Prism;
 use prism_synth::synth::synth_dataset;
 use prism_train::{
     Checkpoint, RunOptions, StepLoss, Task, TaskData, TeacherTask, TrainError, TrainingConfig,
-    list_checkpoints, parameter_values, read_metrics, train,
+    list_checkpoints, read_metrics, train,
 };
 
 /// One dataset for every test of this file: 5 subjects (one held out) at 32 px.
 fn dataset() -> PathBuf {
-    static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let dir = std::env::temp_dir().join(format!("prism-train-tests-{}", std::process::id()));
-        common::write_dataset(&dir, 5, 32);
-        dir
-    })
-    .clone()
-}
-
-/// Held by every test of this file: the backends seed one process-wide random generator, so
-/// a model initialised while another test seeds or initialises would get other weights (the
-/// tests comparing runs bit for bit failed now and then when run in parallel).
-fn serial() -> MutexGuard<'static, ()> {
-    static LOCK: Mutex<()> = Mutex::new(());
-    LOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+    common::dataset_once(5)
 }
 
 fn options_for(out: &Path, data: &Path) -> RunOptions {
@@ -59,9 +45,7 @@ fn tiny_config(steps: usize, edit: impl FnOnce(&mut TrainingConfig)) -> Training
 }
 
 fn weights(dir: &Path) -> Vec<Vec<f32>> {
-    let device = BackendKind::Ndarray.device().unwrap();
-    let model = Checkpoint::read(dir).unwrap().load_model(&device).unwrap();
-    parameter_values(&model)
+    common::weights(dir, BackendKind::Ndarray)
 }
 
 fn max_difference(a: &[Vec<f32>], b: &[Vec<f32>]) -> f32 {
@@ -74,7 +58,7 @@ fn max_difference(a: &[Vec<f32>], b: &[Vec<f32>]) -> f32 {
 
 #[test]
 fn a_resumed_run_reproduces_the_uninterrupted_run() {
-    let _serial = serial();
+    let _serial = common::serial();
     let config = tiny_config(8, |c| {
         c.train.checkpoint_every = 3;
         c.train.keep_checkpoints = 5;
@@ -92,7 +76,7 @@ fn a_resumed_run_reproduces_the_uninterrupted_run() {
 
     // A run stopped after its step-3 checkpoint: the same folder without what came later.
     let cut = tempfile::tempdir().unwrap();
-    copy_dir(full.path(), cut.path());
+    common::copy_dir(full.path(), cut.path());
     for (step, dir) in list_checkpoints(cut.path()).unwrap() {
         if step > 3 {
             std::fs::remove_dir_all(dir).unwrap();
@@ -134,22 +118,9 @@ fn a_resumed_run_reproduces_the_uninterrupted_run() {
     assert_eq!(summary.steps, 9);
 }
 
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for entry in std::fs::read_dir(from).unwrap() {
-        let entry = entry.unwrap();
-        let target = to.join(entry.file_name());
-        if entry.file_type().unwrap().is_dir() {
-            copy_dir(&entry.path(), &target);
-        } else {
-            std::fs::copy(entry.path(), target).unwrap();
-        }
-    }
-}
-
 #[test]
 fn two_devices_train_like_one() {
-    let _serial = serial();
+    let _serial = common::serial();
     let config = tiny_config(2, |c| c.train.batch_size = 3);
     let one = tempfile::tempdir().unwrap();
     let two = tempfile::tempdir().unwrap();
@@ -210,7 +181,7 @@ impl Task for PoisonedTask {
 
 #[test]
 fn non_finite_steps_are_skipped_counted_and_stop_the_run() {
-    let _serial = serial();
+    let _serial = common::serial();
     // Steps 2 and 3 (0-based) are NaN: skipped, the weights untouched, training goes on.
     let config = tiny_config(5, |c| {
         c.train.checkpoint_every = 1;
@@ -259,7 +230,7 @@ fn non_finite_steps_are_skipped_counted_and_stop_the_run() {
 
 #[test]
 fn checkpoints_are_pruned_and_other_configs_are_refused() {
-    let _serial = serial();
+    let _serial = common::serial();
     let config = tiny_config(4, |c| {
         c.train.checkpoint_every = 1;
         c.train.keep_checkpoints = 2;
@@ -344,7 +315,7 @@ fn checkpoints_are_pruned_and_other_configs_are_refused() {
 /// output is tested on the protocol's data in `tests/learning_cli.rs`.)
 #[test]
 fn teacher_training_learns_views_that_copying_cannot_give() {
-    let _serial = serial();
+    let _serial = common::serial();
     let data = std::env::temp_dir().join(format!("prism-train-parallax-{}", std::process::id()));
     common::write_dataset_at_depth(&data, 5, 32, -0.5);
     let config = tiny_config(500, |c| {
@@ -384,7 +355,7 @@ fn teacher_training_learns_views_that_copying_cannot_give() {
 
 #[test]
 fn lpips_enters_the_objective_and_the_log() {
-    let _serial = serial();
+    let _serial = common::serial();
     let config = tiny_config(2, |c| c.losses.lpips = 0.5);
     let out = tempfile::tempdir().unwrap();
     train(&config, &TeacherTask::default(), &options(out.path())).unwrap();
@@ -419,7 +390,7 @@ fn lpips_enters_the_objective_and_the_log() {
 /// maps) a tiny-config run lowers `L_smplx` and `L_pts`, both logged by name.
 #[test]
 fn geometry_losses_fall_on_synthetic_people() {
-    let _serial = serial();
+    let _serial = common::serial();
     let data = tempfile::tempdir().unwrap();
     let options = SynthOptions {
         subjects: 3,

@@ -3,9 +3,11 @@
 use burn::config::Config;
 use burn::module::Module;
 use burn::nn::{Initializer, LayerNorm, LayerNormConfig, Linear, LinearConfig};
-use burn::tensor::{Device, Tensor};
+use burn::tensor::{DType, Device, Tensor};
 
 use super::attention::{AttentionKind, FeatureMap, SelfAttention, SelfAttentionConfig};
+use super::cast;
+use crate::precision::{CastParams, Precision};
 
 /// Configuration of a [`PrismBlock`].
 #[derive(Config, Debug)]
@@ -77,6 +79,7 @@ impl PrismBlockConfig {
                 fc_out: linear(hidden, self.width, self.out_init_std()),
             },
             norm_eps: self.norm_eps,
+            compute: Precision::F32,
         }
     }
 }
@@ -116,11 +119,31 @@ pub struct PrismBlock {
     /// kernel.
     #[module(skip)]
     norm_eps: f64,
+    /// The precision the block computes in (see [`crate::Precision`]): a setting, not a
+    /// parameter, so checkpoints do not hold it.
+    #[module(skip)]
+    compute: Precision,
 }
 
 impl PrismBlock {
-    /// The block on `x` (`[B, T, d]`).
+    /// The block on `x` (`[B, T, d]`), computed in the block's compute precision: `x` and the
+    /// weights are cast to it (no op for those already in it; on tracked weights the cast is
+    /// differentiable, so their gradients come back in their own dtype). The output is in the
+    /// compute precision.
     pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
+        let dtype = self.compute.dtype();
+        let x = cast(x, dtype);
+        if self.dtype() == DType::from(dtype) {
+            self.forward_as_stored(x)
+        } else {
+            self.clone()
+                .map(&mut CastParams(dtype))
+                .forward_as_stored(x)
+        }
+    }
+
+    /// The block on `x` with its weights as they are stored (`x` in their dtype).
+    fn forward_as_stored(&self, x: Tensor<3>) -> Tensor<3> {
         let x = x.clone() + self.attention.forward(self.norm(&self.attention_norm, x));
         x.clone() + self.mlp.forward(self.norm(&self.mlp_norm, x))
     }
@@ -135,9 +158,20 @@ impl PrismBlock {
         }
     }
 
-    /// The dtype of the block's weights (`f32` unless cast for half-precision inference).
-    pub fn dtype(&self) -> burn::tensor::DType {
+    /// The dtype of the block's stored weights (`f32` unless cast for half-precision
+    /// inference, see [`crate::Prism::with_block_precision`]).
+    pub fn dtype(&self) -> DType {
         self.attention.qkv.weight.val().dtype()
+    }
+
+    /// The precision the block computes in.
+    pub fn compute_precision(&self) -> Precision {
+        self.compute
+    }
+
+    /// Sets the precision the block computes in; the stored weights are not touched.
+    pub fn set_compute_precision(&mut self, precision: Precision) {
+        self.compute = precision;
     }
 
     /// The block's attention kind.

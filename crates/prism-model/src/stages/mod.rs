@@ -81,19 +81,16 @@ pub(crate) fn cast<const D: usize>(x: Tensor<D>, dtype: impl Into<DType>) -> Ten
 }
 
 /// Runs `blocks` on `x`, tapping block outputs; the first block has global index `first`.
-/// When the blocks hold half-precision weights ([`crate::Precision`]), `x` is cast to their
-/// dtype once on the way in, and the output and the tapped states back to `x`'s dtype.
+/// Each block computes in its own precision ([`crate::Precision`]; the first casts `x` to it),
+/// and the output and the tapped states are cast back to `x`'s dtype.
 fn run_blocks(
     blocks: &[PrismBlock],
     x: Tensor<3>,
     first: usize,
     hidden: &mut HiddenStates,
 ) -> Tensor<3> {
-    let Some(dtype) = blocks.first().map(PrismBlock::dtype) else {
-        return x;
-    };
     let outer = x.dtype();
-    let mut x = cast(x, dtype);
+    let mut x = x;
     for (offset, block) in blocks.iter().enumerate() {
         x = block.forward(x);
         if hidden.wants(first + offset) {

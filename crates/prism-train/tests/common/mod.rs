@@ -4,14 +4,16 @@
 
 #![allow(dead_code)]
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::{Mutex, MutexGuard, OnceLock};
 
 use glam::Vec3;
 use image::{Luma, Rgb, Rgb32FImage};
+use prism_core::BackendKind;
 use prism_core::CameraRecord;
 use prism_core::{Camera, Intrinsics, ViewingProtocol};
 use prism_data::{DatasetMeta, DatasetWriter, Mask, PointMap, Split, SubjectRecord};
-use prism_train::{TrainingConfig, configs_dir};
+use prism_train::{Checkpoint, TrainingConfig, configs_dir, parameter_values};
 
 struct Blob {
     centre: Vec3,
@@ -171,7 +173,7 @@ pub unsafe fn shrunken_quickstart(
     let options = prism_train::PipelineOptions {
         out: root.join("out"),
         data,
-        backend: prism_core::BackendKind::Ndarray,
+        backend: BackendKind::Ndarray,
         lpips_weights: None,
         progress: false,
     };
@@ -190,4 +192,46 @@ pub fn fine_tune_student(
         ..run.clone()
     };
     prism_train::train(config, &prism_train::TeacherTask::default(), &run)
+}
+
+/// One dataset for every test of a test binary (each is its own process): `subjects` subjects
+/// (one held out) at 32 px, written on first use.
+pub fn dataset_once(subjects: usize) -> PathBuf {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let dir = std::env::temp_dir().join(format!("prism-train-tests-{}", std::process::id()));
+        write_dataset(&dir, subjects, 32);
+        dir
+    })
+    .clone()
+}
+
+/// Held by every test that trains: the backends seed one process-wide random generator, so a
+/// model initialised while another test seeds or initialises would get other weights (the
+/// tests comparing runs bit for bit failed now and then when run in parallel).
+pub fn serial() -> MutexGuard<'static, ()> {
+    static LOCK: Mutex<()> = Mutex::new(());
+    LOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+/// The parameter values of the checkpoint at `dir` (a run folder or one checkpoint), loaded on
+/// `backend`.
+pub fn weights(dir: &Path, backend: BackendKind) -> Vec<Vec<f32>> {
+    let device = backend.device().unwrap();
+    let model = Checkpoint::read(dir).unwrap().load_model(&device).unwrap();
+    parameter_values(&model)
+}
+
+/// Copies a run folder (checkpoints, log) to `to`, to cut a run short without touching it.
+pub fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap() {
+        let entry = entry.unwrap();
+        let target = to.join(entry.file_name());
+        if entry.file_type().unwrap().is_dir() {
+            copy_dir(&entry.path(), &target);
+        } else {
+            std::fs::copy(entry.path(), target).unwrap();
+        }
+    }
 }

@@ -1,0 +1,496 @@
+"""prism beside the same model in PyTorch on one NVIDIA GPU, in one command (issue 35, part 5).
+
+For a machine with the GPU, its driver and PyTorch, but no Rust toolchain and no network:
+
+1. Unpacks the pack of scripts/peer/pack_for_gpu.sh (`prism.xz`, a stripped release binary
+   built with `--features wgpu`, and the Vulkan loader's Debian packages) and points the
+   Vulkan loader at the NVIDIA driver's ICD (printing what it found).
+2. Times the PyTorch model (torch_backbone.py: `F.scaled_dot_product_attention`) at the paper
+   backbone's shapes (width 768, 12 heads, 12 + 24 blocks, patch 8, no geometry parts) with
+   bf16 autocast, TF32 and f32.
+3. Times `prism bench --backend wgpu` on the same model with the blocks in f32, f16 and bf16.
+4. Prints the table: teacher, student and all-linear forward of one pair at 512 px, the
+   teacher's training step at 256 px (median ms), with prism / PyTorch bf16, and the peak
+   memory; then, each optional, the paper config's teacher and student FPS at 512 px (geometry
+   included; `configs/paper.toml`) and `prism quickstart --backend wgpu`, timed, with its
+   phase table. Writes everything to OUT/gpu_compare.md and OUT/gpu_compare.json, and the
+   commands' output to OUT/log.txt.
+
+The stages run one after the other (never two at once: they share the card), each within what
+is left of --budget seconds; one stopped at the budget or failing is reported and the next
+goes on. --dry-run does the same on the CPU at tiny shapes (PyTorch on the CPU, prism on flex)
+to check the whole flow on a machine without a GPU.
+
+usage (from the repository root):
+    python3 scripts/peer/gpu_compare.py --pack gpu-pack --out OUT [--budget 450]
+        [--no-paper] [--no-quickstart] [--iters 5] [--warmup 2] [--prism FILE] [--dry-run]
+"""
+import argparse
+import dataclasses
+import datetime
+import glob
+import importlib.metadata
+import json
+import lzma
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from compare import CONFIG, backbone_shapes, run_command, run_prism, run_torch  # noqa: E402
+
+REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+PAPER_CONFIG = os.path.join(REPO, "configs", "paper.toml")
+LPIPS_WEIGHTS = os.path.join(REPO, "data", "lpips_alex.safetensors")
+# Where NVIDIA's driver installs its Vulkan ICD manifest.
+ICD_DIRS = ["/usr/share/vulkan/icd.d", "/etc/vulkan/icd.d", "/usr/local/share/vulkan/icd.d",
+            "/usr/local/nvidia/share/vulkan/icd.d", "/usr/local/nvidia/icd.d"]
+# Where a driver library named without a folder may lie besides the loader's cache.
+DRIVER_LIB_DIRS = ["/usr/local/nvidia/lib64", "/usr/local/nvidia/lib",
+                   "/usr/lib/x86_64-linux-gnu", "/usr/lib64", "/usr/lib"]
+# The paper's A6000 figures, the targets of the paper config's rows.
+PAPER_FPS = {"teacher": 8.8, "student": 24.0}
+TORCH_DTYPES = ["bf16", "tf32", "f32"]
+MIB = 1024 * 1024
+
+
+@dataclasses.dataclass
+class Plan:
+    """What a run measures: the device, the shapes and the optional stages' arguments."""
+    device: str            # PyTorch's device
+    backend: str           # prism's backend
+    forward_res: int       # forward rows' resolution
+    train_res: int         # training step's resolution
+    data_res: int          # resolution of the synthetic dataset the training step reads
+    width: int
+    heads: int
+    stage_one: int
+    stage_three: int
+    group: int
+    paper_res: int         # the paper config's rows' resolution
+    quickstart: list       # arguments of `prism quickstart` besides --backend and --out
+    budget: float          # default seconds for the whole run
+
+
+GPU = Plan("cuda", "wgpu", 512, 256, 128, 768, 12, 12, 24, 6, 512, [], 450)
+DRY = Plan("cpu", "flex", 64, 32, 32, 64, 2, 2, 4, 3, 64,
+           ["--fast", "--teacher-steps", "2", "--student-steps", "2", "--eval-views", "2"], 900)
+
+
+class Budget:
+    """The seconds left of the whole run."""
+
+    def __init__(self, seconds):
+        self.end = time.monotonic() + seconds
+
+    def left(self):
+        return self.end - time.monotonic()
+
+
+class Run:
+    """The results, the log file and the budget of one run; `stage` runs each part."""
+
+    def __init__(self, out, budget):
+        self.out = out
+        self.log = open(os.path.join(out, "log.txt"), "w")
+        self.budget = budget
+        self.stages = []
+
+    def stage(self, name, fn, least=10):
+        """Runs `fn(seconds_left)`, returning its result, or None when it failed, ran past the
+        budget, or fewer than `least` seconds were left; records its time and outcome."""
+        left = self.budget.left()
+        record = {"stage": name, "seconds": 0.0, "error": None}
+        self.stages.append(record)
+        if left < least:
+            record["error"] = f"skipped: {max(left, 0):.0f} s of the budget left"
+            say(f"== {name}: {record['error']}")
+            return None
+        say(f"== {name} ({left:.0f} s of the budget left)")
+        start = time.monotonic()
+        try:
+            return fn(left)
+        except subprocess.TimeoutExpired:
+            record["error"] = f"stopped at the budget, after {left:.0f} s"
+        except subprocess.CalledProcessError as e:
+            tail = (e.stderr or "").strip().splitlines()[-1:] or [""]
+            record["error"] = f"exit status {e.returncode}: {tail[0]}"
+        except (OSError, ValueError, KeyError) as e:
+            record["error"] = f"{type(e).__name__}: {e}"
+        finally:
+            record["seconds"] = round(time.monotonic() - start, 1)
+            if record["error"]:
+                say(f"== {name}: {record['error']}")
+        return None
+
+
+def say(text):
+    print(text, file=sys.stderr, flush=True)
+
+
+def set_keys(text, values, source):
+    """`text` (a TOML file's) with the `key = value` lines of `values` ({section: {key: value}})
+    replaced; every key must be present in its section of `source`."""
+    section, lines, done = None, [], set()
+    for line in text.splitlines():
+        header = re.match(r"\s*\[(\w+)\]", line)
+        key = re.match(r"(\w+)\s*=", line)
+        if header:
+            section = header.group(1)
+        elif key and key.group(1) in values.get(section, {}):
+            line = f"{key.group(1)} = {values[section][key.group(1)]}"
+            done.add((section, key.group(1)))
+        lines.append(line)
+    missing = [f"[{s}] {k}" for s, keys in values.items() for k in keys if (s, k) not in done]
+    if missing:
+        raise ValueError(f"{source}: no line for {', '.join(missing)}")
+    return "\n".join(lines) + "\n"
+
+
+def backbone_config(plan, path):
+    """Writes backbone.toml at the plan's shapes to `path`: the model at the training step's
+    resolution (the forward rows take theirs from --res), a small synthetic dataset (4
+    people, 1 held out) and one validation view."""
+    with open(CONFIG) as f:
+        text = f.read()
+    values = {
+        "model": {"width": plan.width, "heads": plan.heads, "stage_one_blocks": plan.stage_one,
+                  "stage_three_blocks": plan.stage_three, "resolution": plan.train_res},
+        "distill": {"group_size": plan.group},
+        "train": {"validation_views": 1},
+        "data": {"subjects": 4, "test_fraction": 0.25, "resolution": plan.data_res},
+    }
+    header = f"# Written by gpu_compare.py from {os.path.basename(CONFIG)}: {values}\n"
+    with open(path, "w") as f:
+        f.write(header + set_keys(text, values, CONFIG))
+    return path
+
+
+def unpack_prism(pack, work):
+    """The prism binary of the pack (`prism.xz`), decompressed into `work`."""
+    packed = os.path.join(pack, "prism.xz")
+    if not os.path.isfile(packed):
+        raise SystemExit(f"{packed}: no such file (make the pack with "
+                         "scripts/peer/pack_for_gpu.sh, or pass --prism)")
+    binary = os.path.join(work, "prism")
+    with lzma.open(packed) as src, open(binary, "wb") as dst:
+        shutil.copyfileobj(src, dst)
+    os.chmod(binary, 0o755)
+    say(f"prism: {packed} unpacked to {binary} ({os.path.getsize(binary) / MIB:.0f} MiB)")
+    return binary
+
+
+def known_libraries():
+    """The loader cache's library names and paths (`ldconfig -p`), empty without ldconfig."""
+    try:
+        listing = subprocess.run(["ldconfig", "-p"], capture_output=True, text=True).stdout
+    except OSError:
+        return {}
+    found = {}
+    for line in listing.splitlines():
+        m = re.match(r"\s*(\S+) .*=> (\S+)", line)
+        if m:
+            found.setdefault(m.group(1), m.group(2))
+    return found
+
+
+def extract_debs(pack, work):
+    """Extracts the pack's .deb files (dpkg-deb -x) into work/vulkan; returns the folders
+    that hold their shared libraries."""
+    debs = sorted(glob.glob(os.path.join(pack, "*.deb")))
+    if not debs:
+        return []
+    if not shutil.which("dpkg-deb"):
+        say(f"vulkan: no dpkg-deb here to unpack {', '.join(debs)}: using the system's loader")
+        return []
+    root = os.path.join(work, "vulkan")
+    for deb in debs:
+        subprocess.run(["dpkg-deb", "-x", deb, root], check=True)
+        say(f"vulkan: extracted {os.path.basename(deb)}")
+    dirs = sorted({os.path.dirname(p) for p in glob.glob(os.path.join(root, "**", "lib*.so*"),
+                                                         recursive=True)})
+    return dirs
+
+
+def find_icd():
+    """The NVIDIA Vulkan ICD manifests in the usual folders."""
+    return sorted(p for d in ICD_DIRS for p in glob.glob(os.path.join(d, "nvidia*.json")))
+
+
+def resolve_driver(name, cache):
+    """The path of the ICD's library `name` (absolute, in the loader cache, or in one of
+    DRIVER_LIB_DIRS), or None."""
+    if os.path.isabs(name):
+        return name if os.path.exists(name) else None
+    if name in cache:
+        return cache[name]
+    for d in DRIVER_LIB_DIRS:
+        if os.path.exists(os.path.join(d, name)):
+            return os.path.join(d, name)
+    return None
+
+
+def vulkan_env(pack, work):
+    """The environment of prism's GPU runs: the pack's Vulkan loader on LD_LIBRARY_PATH, the
+    NVIDIA ICD in VK_ICD_FILENAMES / VK_DRIVER_FILES, the driver library's folder on the path
+    when the loader cache lacks it. Returns (env, notes): what was found, also printed."""
+    env = dict(os.environ)
+    env.setdefault("XDG_RUNTIME_DIR", tempfile.gettempdir())
+    notes = {}
+    cache = known_libraries()
+    lib_dirs = extract_debs(pack, work)
+    notes["system_loader"] = cache.get("libvulkan.so.1")
+    notes["pack_library_dirs"] = lib_dirs
+    icds = find_icd()
+    notes["icd_manifests"] = icds
+    if icds:
+        env["VK_ICD_FILENAMES"] = env["VK_DRIVER_FILES"] = icds[0]
+        with open(icds[0]) as f:
+            library = json.load(f).get("ICD", {}).get("library_path", "")
+        path = resolve_driver(library, cache)
+        notes["icd_library"] = {"name": library, "path": path}
+        if path and library not in cache and os.path.dirname(path) not in lib_dirs:
+            lib_dirs.append(os.path.dirname(path))
+    if lib_dirs:
+        env["LD_LIBRARY_PATH"] = ":".join(lib_dirs + [env.get("LD_LIBRARY_PATH", "")]).rstrip(":")
+    notes["missing_driver_dependencies"] = missing_dependencies(
+        notes.get("icd_library", {}).get("path"), env)
+    say("vulkan: loader " + (f"from the pack ({', '.join(lib_dirs)})" if lib_dirs else
+                             f"of the system ({notes['system_loader']})"
+                             if notes["system_loader"] else "NOT FOUND (no .deb in the pack)"))
+    say("vulkan: ICD " + (f"{icds[0]} -> {notes['icd_library']}" if icds else
+                          f"NOT FOUND under {', '.join(ICD_DIRS)}"))
+    if notes["missing_driver_dependencies"]:
+        say(f"vulkan: the driver library lacks {notes['missing_driver_dependencies']}")
+    return env, notes
+
+
+def missing_dependencies(library, env):
+    """The shared libraries `ldd` cannot find for `library` in `env` (empty without one)."""
+    if not library or not shutil.which("ldd"):
+        return []
+    listing = subprocess.run(["ldd", library], env=env, capture_output=True, text=True).stdout
+    return [line.split()[0] for line in listing.splitlines() if "not found" in line]
+
+
+def gpu_name():
+    """The card, its driver and memory as nvidia-smi reports them, or None without one."""
+    if not shutil.which("nvidia-smi"):
+        return None
+    query = ["nvidia-smi", "--query-gpu=name,driver_version,memory.total",
+             "--format=csv,noheader"]
+    return subprocess.run(query, capture_output=True, text=True).stdout.strip() or None
+
+
+def measure_torch(run, plan, args, shapes):
+    """The PyTorch rows per dtype: {dtype: {(model, res): row}}."""
+    threads = os.cpu_count() if plan.device == "cuda" else 2
+    results = {}
+    for dtype in TORCH_DTYPES:
+        rows = run.stage(f"PyTorch {plan.device} {dtype}", lambda left, d=dtype: run_torch(
+            shapes, f"{plan.forward_res},{plan.train_res}", threads, args.warmup, args.iters,
+            plan.train_res, args.train_steps, ["--device", plan.device, "--dtype", d],
+            timeout=left, log=run.log))
+        results[dtype] = rows or {}
+    return results
+
+
+def measure_prism(run, plan, args, prism, config, env):
+    """The prism rows per block precision: {precision: {(model, res): row}}."""
+    results = {}
+    for precision in args.precisions.split(","):
+        rows = run.stage(f"prism {plan.backend} {precision}", lambda left, p=precision: run_prism(
+            prism, config, str(plan.forward_res), plan.backend, args.warmup, args.iters,
+            args.train_steps, ["--precision", p], env, timeout=left, log=run.log))
+        results[precision] = rows or {}
+    return results
+
+
+def measure_paper(run, plan, args, prism, env):
+    """The paper config's teacher and student at plan.paper_res (geometry included), per
+    precision of --paper-precisions: {precision: {(model, res): row}}."""
+    results = {}
+    for precision in args.paper_precisions.split(","):
+        extra = ["--models", "teacher,student", "--precision", precision]
+        rows = run.stage(f"paper config, prism {plan.backend} {precision}",
+                         lambda left, e=extra: run_prism(
+                             prism, PAPER_CONFIG, str(plan.paper_res), plan.backend,
+                             args.warmup, args.iters, 0, e, env, timeout=left, log=run.log))
+        results[precision] = rows or {}
+    return results
+
+
+def measure_quickstart(run, plan, prism, env, work):
+    """`prism quickstart` on the plan's backend, timed: its wall seconds, its tables and its
+    phase timings (OUT/quickstart_phases.json), or None when it did not finish."""
+    out = os.path.join(work, "quickstart")
+    cmd = [prism, "quickstart", "--backend", plan.backend, "--quiet", "--out", out,
+           *plan.quickstart]
+
+    def go(left):
+        start = time.monotonic()
+        tables = run_command(cmd, env, left, run.log)
+        seconds = time.monotonic() - start
+        with open(os.path.join(out, "phases.json")) as f:
+            phases = json.load(f)
+        shutil.copy(os.path.join(out, "phases.json"),
+                    os.path.join(run.out, "quickstart_phases.json"))
+        return {"command": " ".join(cmd), "wall_seconds": seconds, "tables": tables,
+                "phases": phases}
+
+    return run.stage(f"prism quickstart --backend {plan.backend}", go, least=60)
+
+
+def speed_rows(plan):
+    """The table's rows: (label, key of the bench and PyTorch rows)."""
+    f, t = plan.forward_res, plan.train_res
+    return [(f"teacher forward, {f} px", ("teacher", f)),
+            (f"student forward, {f} px", ("student", f)),
+            (f"all-linear forward, {f} px", ("linear", f)),
+            (f"teacher training step, {t} px", ("train_step", t))]
+
+
+def columns(plan, torch_rows, prism_rows):
+    """The table's columns: (name, rows by key), PyTorch's first."""
+    names = {"bf16": "PyTorch bf16", "tf32": "PyTorch TF32", "f32": "PyTorch f32"}
+    cols = [(names[d], torch_rows[d]) for d in TORCH_DTYPES]
+    return cols + [(f"prism {plan.backend} {p}", rows) for p, rows in prism_rows.items()]
+
+
+def cell(row, key, scale=1.0, digits=1):
+    value = (row or {}).get(key)
+    return "-" if value is None else f"{value / scale:.{digits}f}"
+
+
+def speed_table(plan, torch_rows, prism_rows):
+    """Markdown tables of the median ms (with prism / PyTorch bf16) and of the peak memory."""
+    cols = columns(plan, torch_rows, prism_rows)
+    prism_cols = cols[len(TORCH_DTYPES):]
+    head = [c[0] for c in cols] + [f"{name} / PyTorch bf16" for name, _ in prism_cols]
+    lines = ["| row (median ms) | " + " | ".join(head) + " |",
+             "|---|" + "---:|" * len(head)]
+    memory = ["| row (peak MiB) | " + " | ".join(c[0] for c in cols) + " |",
+              "|---|" + "---:|" * len(cols)]
+    for label, key in speed_rows(plan):
+        base = torch_rows["bf16"].get(key, {}).get("ms")
+        values = [cell(rows.get(key), "ms") for _, rows in cols]
+        for _, rows in prism_cols:
+            ms = rows.get(key, {}).get("ms")
+            values.append(f"{ms / base:.2f}x" if ms and base else "-")
+        lines.append(f"| {label} | " + " | ".join(values) + " |")
+        mem = [cell(rows.get(key), "peak_mem_bytes", MIB, 0) for _, rows in cols]
+        memory.append(f"| {label} | " + " | ".join(mem) + " |")
+    return "\n".join(lines) + "\n\nPeak memory: PyTorch's `torch.cuda.max_memory_allocated()`, " \
+        "prism's memory pools (an upper bound of what is in use).\n\n" + "\n".join(memory) + "\n"
+
+
+def paper_table(plan, paper_rows):
+    """Markdown table of the paper config's FPS beside the paper's A6000 figures."""
+    lines = ["| paper config (geometry included) | " + " | ".join(
+        f"prism {plan.backend} {p} FPS" for p in paper_rows) + " | paper (A6000) FPS |",
+        "|---|" + "---:|" * (len(paper_rows) + 1)]
+    for model, target in PAPER_FPS.items():
+        key = (model, plan.paper_res)
+        fps = [cell(rows.get(key), "fps", digits=2) for rows in paper_rows.values()]
+        lines.append(f"| {model}, {plan.paper_res} px | " + " | ".join(fps) + f" | {target} |")
+    return "\n".join(lines) + "\n"
+
+
+def json_rows(results):
+    """{(model, res): row} maps as lists, for the JSON file."""
+    return {name: [dict(row, model=k[0], res=k[1]) for k, row in rows.items()]
+            for name, rows in results.items()}
+
+
+def report(run, plan, context, torch_rows, prism_rows, paper_rows, quickstart):
+    """Prints the Markdown report and writes it and the JSON into the output folder."""
+    parts = [f"# prism and PyTorch on {context['gpu'] or plan.device} ({context['date']})\n",
+             f"Command: `{context['command']}`. Backbone: width {plan.width}, {plan.heads} "
+             f"heads, {plan.stage_one} + {plan.stage_three} blocks, patch 8, no geometry "
+             f"parts; PyTorch {context['torch']}.\n",
+             speed_table(plan, torch_rows, prism_rows)]
+    if paper_rows is not None:
+        parts.append(paper_table(plan, paper_rows))
+    if quickstart:
+        parts.append(f"`{quickstart['command']}`: {quickstart['wall_seconds']:.0f} s\n\n"
+                     f"```\n{quickstart['tables'].strip()}\n```\n")
+    stages = ["| stage | s | outcome |", "|---|---:|---|"]
+    stages += [f"| {s['stage']} | {s['seconds']} | {s['error'] or 'ok'} |" for s in run.stages]
+    parts.append("\n".join(stages) + "\n")
+    markdown = "\n".join(parts)
+    print(markdown)
+    with open(os.path.join(run.out, "gpu_compare.md"), "w") as f:
+        f.write(markdown)
+    data = dict(context, plan=dataclasses.asdict(plan), torch=json_rows(torch_rows),
+                prism=json_rows(prism_rows), paper=json_rows(paper_rows or {}),
+                quickstart=quickstart, stages=run.stages)
+    with open(os.path.join(run.out, "gpu_compare.json"), "w") as f:
+        json.dump(data, f, indent=1)
+    say(f"wrote {run.out}/gpu_compare.md, gpu_compare.json, log.txt")
+
+
+def torch_version():
+    """The installed PyTorch's version; exits with a clear message without one."""
+    try:
+        return importlib.metadata.version("torch")
+    except importlib.metadata.PackageNotFoundError:
+        raise SystemExit(f"{sys.executable} has no PyTorch: run this script with a Python "
+                         "that has it") from None
+
+
+def parse_args():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--pack", default="gpu-pack",
+                    help="folder of prism.xz and the Vulkan loader's .deb files")
+    ap.add_argument("--prism", help="a prism binary to use instead of the pack's")
+    ap.add_argument("--out", default=os.path.join("runs", "gpu-compare"),
+                    help="folder of gpu_compare.md, gpu_compare.json and log.txt")
+    ap.add_argument("--budget", type=float,
+                    help="seconds for everything [default: 450; 900 with --dry-run]")
+    ap.add_argument("--warmup", type=int, default=2, help="untimed runs before timing")
+    ap.add_argument("--iters", type=int, default=5, help="timed runs (the median is reported)")
+    ap.add_argument("--train-steps", type=int, default=6,
+                    help="timed training steps on each side (after 2 warm-up steps)")
+    ap.add_argument("--precisions", default="f32,f16,bf16",
+                    help="prism's block precisions to time (comma-separated)")
+    ap.add_argument("--paper-precisions", default="f32,f16",
+                    help="block precisions of the paper config's rows")
+    ap.add_argument("--no-paper", dest="paper", action="store_false",
+                    help="skip the paper config's FPS rows")
+    ap.add_argument("--no-quickstart", dest="quickstart", action="store_false",
+                    help="skip the timed quick start")
+    ap.add_argument("--dry-run", action="store_true",
+                    help="the whole flow on the CPU at tiny shapes (PyTorch on the CPU, flex)")
+    return ap.parse_args()
+
+
+def main():
+    args = parse_args()
+    plan = DRY if args.dry_run else GPU
+    os.makedirs(args.out, exist_ok=True)
+    run = Run(args.out, Budget(args.budget or plan.budget))
+    context = {"command": " ".join([os.path.basename(sys.executable), *sys.argv]),
+               "date": datetime.datetime.now().isoformat(timespec="seconds"),
+               "gpu": gpu_name(), "torch": torch_version()}
+    say(f"card: {context['gpu'] or 'no nvidia-smi'}; PyTorch {context['torch']}")
+    with tempfile.TemporaryDirectory(prefix="gpu-compare-") as work:
+        prism = args.prism or unpack_prism(args.pack, work)
+        env, context["vulkan"] = vulkan_env(args.pack, work)
+        env["PRISM_CACHE_DIR"] = os.path.join(work, "cache")
+        if os.path.isfile(LPIPS_WEIGHTS):
+            env["PRISM_LPIPS_WEIGHTS"] = LPIPS_WEIGHTS
+        config = backbone_config(plan, os.path.join(work, "backbone.toml"))
+        shapes = backbone_shapes(config)
+        torch_rows = measure_torch(run, plan, args, shapes)
+        prism_rows = measure_prism(run, plan, args, prism, config, env)
+        paper_rows = measure_paper(run, plan, args, prism, env) if args.paper else None
+        quickstart = measure_quickstart(run, plan, prism, env, work) if args.quickstart else None
+        report(run, plan, context, torch_rows, prism_rows, paper_rows, quickstart)
+
+
+if __name__ == "__main__":
+    main()
