@@ -5,11 +5,6 @@
 //! Run with `cargo test --release --features wgpu --test flash_attention` on a machine with a
 //! Vulkan/Metal/DX12 adapter (Mesa's lavapipe is enough); with `PRISM_REQUIRE_WGPU` set, a
 //! missing adapter is a failure instead of a skip.
-//!
-//! Not yet run to completion anywhere: lavapipe crashes compiling Burn's own SPIR-V kernels
-//! (`--features vulkan`), and the WGSL build was not finished in the session that wrote them.
-//! The tests are ignored until a run passes them: `cargo test --release --features wgpu --test
-//! flash_attention -- --include-ignored`.
 #![cfg(feature = "wgpu")]
 
 mod common;
@@ -85,7 +80,6 @@ fn forward_and_grads(
 }
 
 #[test]
-#[ignore = "the flash kernels have not passed on an adapter yet"]
 fn flash_attention_matches_unfused_attention_values_and_gradients() {
     let _guard = serial();
     let Some(device) = common::wgpu_device() else {
@@ -113,7 +107,6 @@ fn flash_attention_matches_unfused_attention_values_and_gradients() {
 }
 
 #[test]
-#[ignore = "the flash kernels have not passed on an adapter yet"]
 fn flash_attention_takes_strided_inputs() {
     let _guard = serial();
     let Some(device) = common::wgpu_device() else {
@@ -131,7 +124,6 @@ fn flash_attention_takes_strided_inputs() {
 }
 
 #[test]
-#[ignore = "the flash kernels have not passed on an adapter yet"]
 fn flash_gradients_match_finite_differences_of_its_forward_pass() {
     let _guard = serial();
     let Some(device) = common::wgpu_device() else {
@@ -174,7 +166,6 @@ fn flash_gradients_match_finite_differences_of_its_forward_pass() {
 }
 
 #[test]
-#[ignore = "the flash kernels have not passed on an adapter yet"]
 fn half_precision_flash_attention_stays_close_to_f32() {
     let _guard = serial();
     let Some(device) = common::wgpu_device() else {
@@ -238,7 +229,6 @@ fn step_memory(
 }
 
 #[test]
-#[ignore = "the flash kernels have not passed on an adapter yet"]
 fn training_memory_grows_linearly_in_tokens() {
     let _guard = serial();
     let Some(device) = common::wgpu_device() else {

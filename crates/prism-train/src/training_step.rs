@@ -257,7 +257,7 @@ impl<'a> TrainingStep<'a> {
         let (grads, values) = self.parallel.forward_backward(self.trainee(), shares)?;
         // The scale is a power of two: dividing by it is exact.
         let grads = match loss_scale {
-            Some(scale) if scale != 1.0 => scale_gradients(self.trainee(), grads, 2.0 / scale),
+            Some(scale) if scale != 1.0 => scale_gradients(self.trainee(), grads, 1.0 / scale),
             _ => grads,
         };
         let (grads, grad_norm) = clip_global_norm(self.trainee(), grads, self.grad_clip_norm);
