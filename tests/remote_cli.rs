@@ -132,6 +132,37 @@ fn weights(dir: &Path) -> Vec<Vec<f32>> {
     parameter_values(&Checkpoint::read(dir).unwrap().load_model(&device).unwrap())
 }
 
+/// Each step's loss and gradient norm (after the devices' gradients are combined), from a run's
+/// `metrics.jsonl`.
+fn curve(dir: &Path) -> Vec<(f64, f64)> {
+    std::fs::read_to_string(dir.join("metrics.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|line| serde_json::from_str::<serde_json::Value>(line).unwrap())
+        .filter_map(|row| Some((row["loss"].as_f64()?, row["grad_norm"].as_f64()?)))
+        .collect()
+}
+
+/// Asserts that two runs took steps of the same loss and gradient norm, to `1e-4` relative.
+/// AdamW's update divides a gradient by its own running size, so comparing weights alone would
+/// let a gradient wrong by any positive factor (a sum instead of a mean across devices) pass;
+/// the gradient norm doubles under such a factor.
+fn assert_same_curve(got: &Path, want: &Path) {
+    let (got, want) = (curve(got), curve(want));
+    assert!(
+        !want.is_empty() && got.len() == want.len(),
+        "{got:?} vs {want:?}"
+    );
+    for (step, (g, w)) in got.iter().zip(&want).enumerate() {
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-4 * b.abs();
+        assert!(
+            close(g.0, w.0) && close(g.1, w.1),
+            "step {}: (loss, gradient norm) {g:?}, one local device {w:?}",
+            step + 1
+        );
+    }
+}
+
 fn max_difference(a: &[Vec<f32>], b: &[Vec<f32>]) -> f32 {
     assert_eq!(a.len(), b.len());
     a.iter()
@@ -170,8 +201,12 @@ fn served_devices_train_like_one_local_device() {
             "{transport}: {notes}"
         );
         assert_eq!(Checkpoint::read(&out).unwrap().state.devices, 2);
+        assert_same_curve(&out, &local);
+        // Float rounding (the served device runs Burn's composed operations, batched into
+        // graphs in the GPU build) that AdamW's normalised first steps amplify: a tenth of
+        // one step's size at this learning rate.
         let diff = max_difference(&weights(&out), &expected);
-        assert!(diff < 1e-5, "{transport}: max difference {diff}");
+        assert!(diff < 1e-4, "{transport}: max difference {diff}");
     }
     // One server serving two devices (a node's GPUs): it prints one entry per device.
     let node = Server::start("websocket", &token, &["--devices", "2", "--data", s(&data)]);
@@ -187,9 +222,10 @@ fn served_devices_train_like_one_local_device() {
         &out,
         &["--devices", &node.entry, "--token-file", s(&token)],
     ));
+    assert_same_curve(&out, &local);
     let diff = max_difference(&weights(&out), &expected);
     assert!(
-        diff < 1e-5,
+        diff < 1e-4,
         "one server, two devices: max difference {diff}"
     );
 }
@@ -230,12 +266,13 @@ fn distill_student_trains_on_served_devices_like_on_one_local_device() {
         &["--devices", &devices, "--token-file", s(&token)],
     ));
     assert_eq!(Checkpoint::read(&served).unwrap().state.devices, 2);
+    assert_same_curve(&served, &local);
     // Served devices run Burn's composed operations where a local flex device runs prism's
     // fused CPU kernels (GELU, norms, attention): the forward passes differ by float rounding
-    // (two local devices match one to 1e-6), which AdamW's normalised first steps amplify to
-    // about 1e-5 after one step and 2e-4 after five at this learning rate.
+    // (losses agree to 2e-6 relative), which AdamW's normalised steps amplify to about 1e-3
+    // after five steps at this learning rate, about a step's size.
     let diff = max_difference(&weights(&served), &weights(&local));
-    assert!(diff < 1e-3, "max difference {diff}");
+    assert!(diff < 3e-3, "max difference {diff}");
 }
 
 #[test]

@@ -7,6 +7,7 @@
 //! intrinsics and a 4x4 camera-to-world matrix; pixel centres at `(x + 0.5, y + 0.5)`;
 //! images as `[B, 3, H, W]` tensors in [0, 1].
 
+pub mod axes;
 pub mod backend;
 pub mod camera;
 pub mod camera_record;

@@ -6,6 +6,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use burn::tensor::{Device, Tensor, TensorData};
+use prism_core::axes::permute;
 use serde::Serialize;
 
 use crate::{ImageScores, LPIPS_MIN_SIDE, LossError, Lpips, SSIM_WINDOW, ScoreTable, score_images};
@@ -83,7 +84,7 @@ pub fn load_image(path: &Path, device: &Device) -> Result<Tensor<4>, LossError> 
             _ => decoded.to_rgb32f().into_raw(),
         };
     let data = TensorData::new(interleaved, [1, height, width, 3]);
-    Ok(Tensor::<4>::from_data(data, device).permute([0, 3, 1, 2]))
+    Ok(permute(Tensor::<4>::from_data(data, device), [0, 3, 1, 2]))
 }
 
 /// Scores one image file against another (same size, at least 31 x 31).

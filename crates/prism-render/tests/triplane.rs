@@ -40,8 +40,8 @@ fn reference(planes: &Tensor<4>, coords: &Tensor<4>) -> Tensor<4> {
                 coords.clone().narrow(1, axes[1], 1),
             ],
             1,
-        )
-        .permute([0, 2, 3, 1]);
+        );
+        let grid = prism_core::axes::permute(grid, [0, 2, 3, 1]);
         assert_eq!(grid.dims(), [b, h, w, 2]);
         let s = plane.grid_sample_2d(grid, options.clone());
         sum = Some(match sum {

@@ -46,6 +46,7 @@ use burn::nn::{Initializer, LayerNorm, LayerNormConfig, Linear, LinearConfig};
 use burn::tensor::activation::{sigmoid, softplus};
 use burn::tensor::ops::{GridSampleOptions, GridSamplePaddingMode};
 use burn::tensor::{Device, Tensor, TensorData};
+use prism_core::axes::permute;
 use prism_render::splat::{GaussianCloud, Gaussians, background, render};
 use serde::{Deserialize, Serialize};
 
@@ -333,8 +334,10 @@ impl GaussianHead {
             };
             let rendered = render(&coordinates, &targets).expect("Gaussians and cameras fit");
             let alpha = rendered.alpha.clone();
-            let grid =
-                (rendered.features / alpha.clone().clamp_min(FLOW_ALPHA_EPS)).permute([0, 2, 3, 1]);
+            let grid = permute(
+                rendered.features / alpha.clone().clamp_min(FLOW_ALPHA_EPS),
+                [0, 2, 3, 1],
+            );
             let sampled = source_image.clone().grid_sample_2d(
                 grid,
                 GridSampleOptions::default().with_padding_mode(GridSamplePaddingMode::Border),

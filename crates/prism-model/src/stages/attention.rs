@@ -6,6 +6,7 @@ use burn::module::Module;
 use burn::nn::{Initializer, Linear, LinearConfig, RmsNorm, RmsNormConfig};
 use burn::tensor::activation::relu;
 use burn::tensor::{DType, Device, FloatDType, Tensor};
+use prism_core::axes::permute;
 use serde::{Deserialize, Serialize};
 
 /// The attention a transformer block computes. Both kinds use the same parameters, so a block
@@ -213,12 +214,13 @@ impl SelfAttention {
         let head_dim = width / self.heads;
         // [B, T, 3, H, d_h] -> [3 B, H, T, d_h]: one copy into head-major order, after which q,
         // k and v are contiguous slices of it (no copy each).
-        let qkv = self
-            .qkv
-            .forward(x)
-            .reshape([batch, tokens, 3, self.heads, head_dim])
-            .permute([2, 0, 3, 1, 4])
-            .reshape([3 * batch, self.heads, tokens, head_dim]);
+        let qkv = permute(
+            self.qkv
+                .forward(x)
+                .reshape([batch, tokens, 3, self.heads, head_dim]),
+            [2, 0, 3, 1, 4],
+        )
+        .reshape([3 * batch, self.heads, tokens, head_dim]);
         let part = |i: usize| qkv.clone().narrow(0, i * batch, batch);
         let (q, k, v) = (part(0), part(1), part(2));
         let norm = |norm: &RmsNorm, x| prism_kernels::rms_norm(x, norm.gamma.val(), norm.epsilon);

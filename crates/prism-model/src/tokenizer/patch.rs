@@ -5,6 +5,7 @@
 //! `(y * p + x) * C + c` (channel fastest). [`unpatchify`] is the exact inverse.
 
 use burn::tensor::Tensor;
+use prism_core::axes::permute;
 
 /// Splits `[B, C, H, W]` into non-overlapping `p x p` patches: `[B, (H/p)(W/p), p*p*C]`.
 ///
@@ -17,10 +18,12 @@ pub(crate) fn patchify(x: Tensor<4>, p: usize) -> Tensor<3> {
         "image size {height}x{width} is not a multiple of the patch size {p}"
     );
     let (rows, cols) = (height / p, width / p);
-    x.reshape([batch, channels, rows, p, cols, p])
-        // [B, rows, cols, y, x, C]
-        .permute([0, 2, 4, 3, 5, 1])
-        .reshape([batch, rows * cols, p * p * channels])
+    // [B, rows, cols, y, x, C]
+    permute(
+        x.reshape([batch, channels, rows, p, cols, p]),
+        [0, 2, 4, 3, 5, 1],
+    )
+    .reshape([batch, rows * cols, p * p * channels])
 }
 
 /// Reassembles patches `[B, (H/p)(W/p), p*p*C]` into `[B, C, H, W]`: the inverse of
@@ -47,11 +50,12 @@ pub(crate) fn unpatchify(
         "tokens [{batch}, {count}, {features}] do not form a {channels}x{height}x{width} image \
          with patch {p}"
     );
-    tokens
-        .reshape([batch, rows, cols, p, p, channels])
-        // [B, C, rows, y, cols, x]
-        .permute([0, 5, 1, 3, 2, 4])
-        .reshape([batch, channels, height, width])
+    // [B, C, rows, y, cols, x]
+    permute(
+        tokens.reshape([batch, rows, cols, p, p, channels]),
+        [0, 5, 1, 3, 2, 4],
+    )
+    .reshape([batch, channels, height, width])
 }
 
 #[cfg(test)]

@@ -19,6 +19,7 @@ use burn::backend::Dispatch;
 use burn::tensor::{Device, Int, Tensor, TensorData};
 use glam::Vec3;
 use prism_core::Camera;
+use prism_core::axes::permute;
 
 pub use raster::{BAND_ROWS, NEAR_PLANE};
 
@@ -146,11 +147,13 @@ impl Fragments {
         let index = Tensor::<1, Int>::from_data(TensorData::new(index, [3 * n]), &device);
         let weight = Tensor::<2>::from_data(TensorData::new(weight, [3 * n, 1]), &device);
         let gathered = attributes.reshape([b * v, c]).select(0, index) * weight;
-        gathered
-            .reshape([n, 3, c])
-            .sum_dim(1)
-            .reshape([b, self.height, self.width, c])
-            .permute([0, 3, 1, 2])
+        permute(
+            gathered
+                .reshape([n, 3, c])
+                .sum_dim(1)
+                .reshape([b, self.height, self.width, c]),
+            [0, 3, 1, 2],
+        )
     }
 }
 
@@ -247,11 +250,13 @@ impl FragmentMaps {
         let index = (table.select(0, ids) + base).reshape([3 * n]);
         let visible = self.mask().reshape([b, h, w, 1]);
         let weight = (self.barycentrics.clone() * visible).reshape([3 * n, 1]);
-        (attributes.reshape([b * v, c]).select(0, index) * weight)
-            .reshape([n, 3, c])
-            .sum_dim(1)
-            .reshape([b, h, w, c])
-            .permute([0, 3, 1, 2])
+        permute(
+            (attributes.reshape([b * v, c]).select(0, index) * weight)
+                .reshape([n, 3, c])
+                .sum_dim(1)
+                .reshape([b, h, w, c]),
+            [0, 3, 1, 2],
+        )
     }
 }
 

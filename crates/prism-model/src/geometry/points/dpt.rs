@@ -17,6 +17,7 @@ use burn::module::Module;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::{Initializer, Linear, LinearConfig, PaddingConfig2d};
 use burn::tensor::{Device, Tensor};
+use prism_core::axes::permute;
 use prism_kernels::gelu;
 
 /// The upsampling factors of the reassembled maps, from the earliest tap (for patch sizes that
@@ -125,9 +126,7 @@ pub struct DptHead {
 /// `[B, h w, c f^2]` token features to a `[B, c, f h, f w]` map (pixel shuffle).
 fn shuffle(x: Tensor<3>, c: usize, f: usize, h: usize, w: usize) -> Tensor<4> {
     let [b, _, _] = x.dims();
-    x.reshape([b, h, w, f, f, c])
-        .permute([0, 5, 1, 3, 2, 4])
-        .reshape([b, c, h * f, w * f])
+    permute(x.reshape([b, h, w, f, f, c]), [0, 5, 1, 3, 2, 4]).reshape([b, c, h * f, w * f])
 }
 
 /// Bilinear upsampling of `[B, C, H, W]` by the integer factor `f` along axis `dim` (2 or 3),
@@ -248,9 +247,10 @@ mod tests {
         device.seed(2);
         let linear = LinearConfig::new(5, 3).init(&device);
         let x = Tensor::<4>::random([2, 5, 4, 6], burn::tensor::Distribution::Default, &device);
-        let want = linear
-            .forward(x.clone().permute([0, 2, 3, 1]))
-            .permute([0, 3, 1, 2]);
+        let want = permute(
+            linear.forward(permute(x.clone(), [0, 2, 3, 1])),
+            [0, 3, 1, 2],
+        );
         let got = per_pixel(&linear, x);
         assert_eq!(got.dims(), [2, 3, 4, 6]);
         let err = crate::test_util::max_abs_diff(
