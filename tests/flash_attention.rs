@@ -2,9 +2,9 @@
 //! values, every input's gradient, finite differences of the kernels' own forward pass, half
 //! precision, and the memory a training step keeps, at two sequence lengths.
 //!
-//! Run with `cargo test --release --features wgpu --test flash_attention` on a machine with a
-//! Vulkan/Metal/DX12 adapter (Mesa's lavapipe is enough); with `PRISM_REQUIRE_WGPU` set, a
-//! missing adapter is a failure instead of a skip.
+//! Runs in the default build (the `wgpu` feature) on a machine with a Vulkan/Metal/DX12 adapter
+//! (Mesa's lavapipe is enough): `cargo test --release --test flash_attention`. With
+//! `PRISM_REQUIRE_WGPU` set, a missing adapter is a failure instead of a skip.
 #![cfg(feature = "wgpu")]
 
 mod common;
@@ -113,9 +113,9 @@ fn flash_attention_takes_strided_inputs() {
         return;
     };
     device.seed(4);
-    // q, k, v as the model makes them: slices of one permuted projection.
+    // q, k, v as the model makes them: slices of one projection with swapped axes.
     let qkv = Tensor::<4>::random([3, 19, 2, 16], Distribution::Normal(0.0, 1.0), &device)
-        .permute([0, 2, 1, 3]);
+        .swap_dims(1, 2);
     let part = |i: usize| qkv.clone().narrow(0, i, 1);
     let (q, k, v) = (part(0), part(1), part(2));
     let got = values(flash(q.clone(), k.clone(), v.clone()));

@@ -4,7 +4,7 @@
 //! reads nothing back to the host in its geometry operations (the device kernels), where the
 //! same step on flex does (the host path).
 //!
-//! Runs with `--features wgpu` on a machine with a Vulkan / Metal / DX12 adapter; Mesa's
+//! Runs in the default build (the `wgpu` feature) on a machine with a Vulkan / Metal / DX12 adapter; Mesa's
 //! software Vulkan (lavapipe, Debian package `mesa-vulkan-drivers`) is enough, and `.ci/run`
 //! installs it. Without an adapter the tests say so and pass, unless `PRISM_REQUIRE_WGPU=1`
 //! (set by CI), which turns the missing adapter into a failure.

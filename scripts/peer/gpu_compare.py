@@ -3,7 +3,7 @@
 For a machine with the GPU, its driver and PyTorch, but no Rust toolchain and no network:
 
 1. Unpacks the pack of scripts/peer/pack_for_gpu.sh (`prism.xz`, a stripped release binary
-   built with `--features wgpu`, and the Vulkan loader's Debian packages) and points the
+   built with `--features vulkan`, and the Vulkan loader's Debian packages) and points the
    Vulkan loader at the NVIDIA driver's ICD (printing what it found).
 2. Times the PyTorch model (torch_backbone.py: `F.scaled_dot_product_attention`) at the paper
    backbone's shapes (width 768, 12 heads, 12 + 24 blocks, patch 8, no geometry parts) with

@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Packs what scripts/peer/gpu_compare.py needs on a GPU machine that has no Rust toolchain and
-# no network, into gpu-pack/ (ignored by git): prism built with --features wgpu in release
-# mode, stripped and xz-compressed (prism.xz), and the Debian packages of the Vulkan loader
-# (libvulkan1) and of libglvnd (libglvnd0, which NVIDIA's Vulkan driver library links to).
+# no network, into gpu-pack/ (ignored by git): prism built with --features vulkan in release
+# mode (kernels compiled to SPIR-V, the path to the tensor cores), stripped and xz-compressed
+# (prism.xz), and the Debian packages of the Vulkan loader (libvulkan1) and of libglvnd
+# (libglvnd0, which NVIDIA's Vulkan driver library links to).
 # Then prints the command that runs the comparison there.
 #
 # usage (from anywhere in the repository): scripts/peer/pack_for_gpu.sh
@@ -11,11 +12,11 @@ cd "$(git -C "$(dirname "$0")" rev-parse --show-toplevel)"
 pack=gpu-pack
 packages=(libvulkan1 libglvnd0)
 
-cargo build --release --features wgpu
+cargo build --release --features vulkan
 mkdir -p "$pack"
 strip -o "$pack/prism" target/release/prism
 xz -T0 -6 -f "$pack/prism"
-echo "$pack/prism.xz: $(du -h "$pack/prism.xz" | cut -f1) (stripped release binary, --features wgpu)"
+echo "$pack/prism.xz: $(du -h "$pack/prism.xz" | cut -f1) (stripped release binary, --features vulkan)"
 
 rm -f "$pack"/*.deb
 if ! (cd "$pack" && apt-get download "${packages[@]}"); then

@@ -8,7 +8,7 @@
 //!   [`stderr`] and [`text`] of an output;
 //! - files: [`scratch`] (a fresh folder per test), [`s`] (a path as an argument), [`cache`]
 //!   (this process's dataset cache, holding one synthetic dataset), [`copy_dir`];
-//! - devices: `wgpu_device` (with `--features wgpu`: the adapter, or a skip, or a failure
+//! - devices: `wgpu_device` (with the `wgpu` feature: the adapter, or a skip, or a failure
 //!   under `PRISM_REQUIRE_WGPU`).
 #![allow(dead_code)]
 
@@ -191,7 +191,7 @@ pub fn assert_training_curves(path: &Path) {
 pub fn wgpu_device() -> Option<burn::tensor::Device> {
     let device = prism_core::BackendKind::Wgpu
         .device()
-        .expect("built with --features wgpu");
+        .expect("built with the wgpu feature");
     let probe = device.clone();
     let works = std::panic::catch_unwind(move || {
         burn::tensor::Tensor::<1>::from_floats([1.0, 2.0], &probe)

@@ -1,6 +1,6 @@
 //! The rasterizer's device kernels (wgpu) against the host rasterizer (ndarray): forward values
 //! and every gradient, on scenes that stress them, and no geometry read on the way. Runs with
-//! `--features wgpu` on a machine with a Vulkan/Metal/DX12 adapter (Mesa's lavapipe is enough);
+//! the `wgpu` feature (on in the workspace's default build) on a machine with a Vulkan/Metal/DX12 adapter (Mesa's lavapipe is enough);
 //! with `PRISM_REQUIRE_WGPU` set, a missing adapter is a failure instead of a skip.
 #![cfg(feature = "wgpu")]
 
