@@ -80,6 +80,7 @@ fn forward_and_grads(
 }
 
 #[test]
+#[cfg_attr(not(wgpu_adapter), ignore = "no wgpu adapter on this machine")]
 fn flash_attention_matches_unfused_attention_values_and_gradients() {
     let _guard = serial();
     let Some(device) = common::wgpu_device() else {
@@ -107,6 +108,7 @@ fn flash_attention_matches_unfused_attention_values_and_gradients() {
 }
 
 #[test]
+#[cfg_attr(not(wgpu_adapter), ignore = "no wgpu adapter on this machine")]
 fn flash_attention_takes_strided_inputs() {
     let _guard = serial();
     let Some(device) = common::wgpu_device() else {
@@ -124,6 +126,7 @@ fn flash_attention_takes_strided_inputs() {
 }
 
 #[test]
+#[cfg_attr(not(wgpu_adapter), ignore = "no wgpu adapter on this machine")]
 fn flash_gradients_match_finite_differences_of_its_forward_pass() {
     let _guard = serial();
     let Some(device) = common::wgpu_device() else {
@@ -166,6 +169,7 @@ fn flash_gradients_match_finite_differences_of_its_forward_pass() {
 }
 
 #[test]
+#[cfg_attr(not(wgpu_adapter), ignore = "no wgpu adapter on this machine")]
 fn half_precision_flash_attention_stays_close_to_f32() {
     let _guard = serial();
     let Some(device) = common::wgpu_device() else {
@@ -229,6 +233,7 @@ fn step_memory(
 }
 
 #[test]
+#[cfg_attr(not(wgpu_adapter), ignore = "no wgpu adapter on this machine")]
 fn training_memory_grows_linearly_in_tokens() {
     let _guard = serial();
     let Some(device) = common::wgpu_device() else {

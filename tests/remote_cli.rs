@@ -38,6 +38,30 @@ fn dataset_copy(dir: &Path, edit: impl FnOnce(&Path)) -> PathBuf {
     copy
 }
 
+/// The options of the tests' synthetic dataset.
+fn config_data() -> prism_data::SynthOptions {
+    tiny_config(1).data
+}
+
+/// A file of the dataset folder `dir` other than `dataset.json` (the first in name order,
+/// searched depth first).
+fn first_file_beside_the_metadata(dir: &Path) -> PathBuf {
+    let mut entries: Vec<PathBuf> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    entries.sort();
+    for path in entries {
+        if path.is_dir() {
+            return first_file_beside_the_metadata(&path);
+        }
+        if path.file_name().is_some_and(|n| n != "dataset.json") {
+            return path;
+        }
+    }
+    panic!("no file in {}", dir.display())
+}
+
 /// The tests' tiny config (32 px, 4 subjects), `steps` steps of 2 samples, a checkpoint at
 /// every step.
 fn tiny_config(steps: usize) -> TrainingConfig {
@@ -366,7 +390,7 @@ fn refusals_are_one_clear_line() {
     let (config, token) = setup(&dir, &tiny_config(1));
     let run = dir.join("run");
     let wrong = dir.join("wrong-token");
-    std::fs::write(&wrong, "guess").unwrap();
+    std::fs::write(&wrong, "a-wrong-guess-of-enough-bytes").unwrap();
     let small = configs_dir().join("small.toml");
     let server = Server::start("websocket", &token, &["--config", s(&small)]);
 
@@ -411,6 +435,36 @@ fn refusals_are_one_clear_line() {
         &["--devices", &elsewhere.entry, "--token-file", s(&token)],
     ));
     assert!(err.contains("loads another dataset"), "{err}");
+    // A stale copy: the same dataset.json, one file of another size.
+    let stale = dir.join("stale-data");
+    copy_dir(&prism_synth::synthetic_dataset_dir(&config_data()), &stale);
+    let file = first_file_beside_the_metadata(&stale);
+    let bytes = std::fs::read(&file).unwrap();
+    std::fs::write(&file, &bytes[..bytes.len() - 1]).unwrap();
+    let behind = Server::start("websocket", &token, &["--data", s(&stale)]);
+    let err = failure(train(
+        &config,
+        &run,
+        &["--devices", &behind.entry, "--token-file", s(&token)],
+    ));
+    assert!(err.contains("loads another dataset"), "{err}");
+    // A token too short to resist guessing: refused at the server's start, saying how to make
+    // a good one.
+    let short = dir.join("short-token");
+    std::fs::write(&short, "abcd\n").unwrap();
+    let err = failure(prism(&[
+        "serve",
+        "--transport",
+        "websocket",
+        "--listen",
+        "127.0.0.1:0",
+        "--token-file",
+        s(&short),
+    ]));
+    assert!(
+        err.contains("4 bytes") && err.contains("openssl rand"),
+        "{err}"
+    );
     // No token at all.
     let mut no_token = train(&config, &run, &["--devices", &server.entry]);
     no_token.env_remove("PRISM_TOKEN");
@@ -438,11 +492,17 @@ fn refusals_are_one_clear_line() {
 fn a_server_that_cannot_read_its_share_is_named_with_the_file() {
     let dir = scratch("unreadable");
     let (config, token) = setup(&dir, &tiny_config(1));
+    // Every image of the copy overwritten with zeros of the same size: the same files and
+    // sizes (the handshake's digest), none of them readable.
     let data = dataset_copy(&dir, |copy| {
         for subject in std::fs::read_dir(copy).unwrap() {
             let rgb = subject.unwrap().path().join("rgb");
             if rgb.is_dir() {
-                std::fs::remove_dir_all(rgb).unwrap();
+                for image in std::fs::read_dir(rgb).unwrap() {
+                    let image = image.unwrap().path();
+                    let len = std::fs::metadata(&image).unwrap().len() as usize;
+                    std::fs::write(&image, vec![0u8; len]).unwrap();
+                }
             }
         }
     });
@@ -486,4 +546,133 @@ fn serve_stops_cleanly_on_sigint_and_sigterm() {
         };
         assert!(status.success(), "SIG{signal}: {status}");
     }
+}
+
+/// A client holding the token sends each input past a server's limits, straight to the
+/// server's operations (a trainer's own checks refuse them before sending): a share of a huge
+/// resolution, a flood of seeds, a splatting call of a huge camera, a mesh call whose faces
+/// index past its vertices. Each is refused, naming the limit (in the answer for a share, in
+/// the server's log for the others, whose session the server drops), and afterwards the same
+/// server still trains a tiny run like one local device.
+#[test]
+fn a_server_refuses_calls_past_its_limits_and_keeps_serving() {
+    use burn::backend::Remote;
+    use burn::tensor::{Device, Tensor};
+    use prism_core::served::{self as ops, Call};
+    use prism_remote::shard::{self, REQUEST_LEN, SHARD_OP, STATUS_LEN, ShardRequest};
+    use prism_remote::{DeviceList, Fingerprint, connect};
+    use prism_render::served::{MESH_RASTERIZE, SPLAT_FORWARD, encode_cameras};
+
+    let dir = scratch("limits");
+    let (config, token) = setup(&dir, &tiny_config(2));
+    let data = dataset_copy(&dir, |_| {});
+    // Two devices: two sessions, one dropped per refused geometry call.
+    let server = Server::start("websocket", &token, &["--devices", "2", "--data", s(&data)]);
+    let list: DeviceList = server.entry.parse().unwrap();
+    let secret = std::fs::read_to_string(&token).unwrap();
+    let devices: Vec<Device> = connect(
+        &list,
+        &Device::flex(),
+        Some(secret.trim()),
+        &Fingerprint::this_build(None),
+    )
+    .unwrap()
+    .into_iter()
+    .map(|c| c.device)
+    .collect();
+    let on = |device: &Device, shape: [usize; 3]| {
+        Tensor::<3>::zeros(shape, device)
+            .try_into_primitive::<Remote>()
+            .unwrap()
+    };
+
+    // A share of 100000 px: the answer names the limit; nothing of that size is made.
+    let huge = ShardRequest {
+        targets: 1,
+        resolution: 100_000,
+        seed: 0,
+        items: vec![0],
+    };
+    let json = serde_json::to_vec(&huge).unwrap();
+    let side = 100_000;
+    let answer = prism_data::PIXEL_PLANES
+        .iter()
+        .fold(
+            Call::new(&devices[0])
+                .unwrap()
+                .input(ops::encode(&json, REQUEST_LEN)),
+            |call, &c| call.output([1, c, side, side]),
+        )
+        .output([STATUS_LEN])
+        .send(SHARD_OP)
+        .pop()
+        .unwrap();
+    let said = String::from_utf8(ops::read_message(answer).unwrap()).unwrap();
+    assert!(said.contains("limit of 1 to 4096"), "{said}");
+    // A flood of seeds: each share loads, and the server keeps at most a few sets open.
+    for seed in 0..12 {
+        let request = ShardRequest {
+            targets: 1,
+            resolution: 32,
+            seed,
+            items: vec![0],
+        };
+        shard::load(&devices[0], &request).unwrap();
+    }
+
+    // A splatting call of a 100000 x 100000 camera.
+    let camera = prism_core::Camera::look_at(
+        glam::Vec3::Z,
+        glam::Vec3::ZERO,
+        glam::Vec3::Y,
+        prism_core::Intrinsics::protocol_default(100_000, 100_000),
+    );
+    let out = [[1, 1, 3], [1, 1, 3], [1, 1, 4], [1, 1, 1], [1, 1, 3]]
+        .into_iter()
+        .fold(Call::new(&devices[0]).unwrap(), |call, shape| {
+            call.input_tensor(on(&devices[0], shape))
+        })
+        .input(encode_cameras(&[camera]))
+        .output([1, 5, side, side])
+        .send(SPLAT_FORWARD)
+        .remove(0);
+    assert!(ops::read_message(out).is_err(), "a refused call answered");
+    // A mesh call whose second face indexes vertex 999 of 3.
+    let small = prism_core::Camera::look_at(
+        glam::Vec3::Z,
+        glam::Vec3::ZERO,
+        glam::Vec3::Y,
+        prism_core::Intrinsics::protocol_default(16, 16),
+    );
+    let out = Call::new(&devices[1])
+        .unwrap()
+        .input_tensor(on(&devices[1], [1, 3, 3]))
+        .input(vec![0.0, 1.0, 2.0, 0.0, 1.0, 999.0])
+        .input(encode_cameras(&[small]))
+        .output([1, 16, 16])
+        .output([1, 16, 16, 3])
+        .output([1, 16, 16])
+        .send(MESH_RASTERIZE)
+        .remove(0);
+    assert!(ops::read_message(out).is_err(), "a refused call answered");
+
+    let log = std::fs::read_to_string(&server.log).unwrap();
+    for refusal in [
+        "refused a call of prism.splat.forward.v1: invalid render input: an image size of \
+         100000x100000 exceeds the limit of 4096 px a side",
+        "refused a call of prism.mesh.rasterize.v1: invalid render input: face [0, 1, 999] \
+         indexes past the 3 vertices",
+    ] {
+        assert!(log.contains(refusal), "{refusal} not in the log:\n{log}");
+    }
+    // The same server trains a tiny run like one local device.
+    let local = dir.join("local");
+    success(train(&config, &local, &[]));
+    let served = dir.join("served");
+    success(train(
+        &config,
+        &served,
+        &["--devices", &server.entry, "--token-file", s(&token)],
+    ));
+    assert_same_curve(&served, &local);
 }

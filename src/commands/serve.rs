@@ -12,8 +12,9 @@ use prism_train::{TrainingConfig, fingerprint};
 /// Arguments of `prism serve`.
 #[derive(Args, Debug)]
 pub struct ServeArgs {
-    /// The address to listen on; port 0 picks a free one.
-    #[arg(long, value_name = "ADDR", default_value = "0.0.0.0:7000")]
+    /// The address to listen on; port 0 picks a free one. Loopback by default: other machines
+    /// reach the server only through an address given here (e.g. `0.0.0.0:7000`).
+    #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:7000")]
     listen: SocketAddr,
     /// The file holding the token trainers must present [default: $PRISM_TOKEN].
     #[arg(long, value_name = "FILE")]
@@ -55,7 +56,7 @@ impl ServeArgs {
         };
         let data = self.data.as_deref().map(DatasetReader::open).transpose()?;
         let fingerprint = match &data {
-            Some(reader) => fingerprint.with_data(dataset_digest(reader)),
+            Some(reader) => fingerprint.with_data(dataset_digest(reader)?),
             None => fingerprint,
         };
         let loads = match &self.data {

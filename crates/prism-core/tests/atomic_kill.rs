@@ -1,18 +1,27 @@
-//! The atomic writer under SIGKILL: a child process rewrites one file in a loop through
-//! `prism_core::files::write_atomic` and is killed at arbitrary moments; every time, the file
-//! is one complete version (the old one or a new one), and nothing else is left in its folder
-//! but, when the kill fell between naming a complete copy and renaming it, that hidden copy,
-//! which the next write removes.
+//! The atomic writers under SIGKILL.
+//! - A child process rewrites one file in a loop through `prism_core::files::write_atomic` and
+//!   is killed at arbitrary moments; every time, the file is one complete version (the old one
+//!   or a new one), and nothing else is left in its folder but, when the kill fell between
+//!   naming a complete copy and renaming it, that hidden copy, which the next write removes.
+//! - A child process replaces one folder in a loop through `prism_core::files::replace_dir`
+//!   (a checkpoint's write) and is killed at arbitrary moments; every time, `recover_dir` leaves
+//!   the folder complete (its files of one version) and nothing beside it.
 
 use std::io::Write;
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use prism_core::files::{write_atomic, write_bytes};
+use prism_core::files::{
+    STAGED_SUFFIX, recover_dir, replace_dir, with_suffix, write_atomic, write_bytes,
+};
 
 /// The variable that turns [`child_rewrites_the_file_forever`] on and names its file.
 const TARGET_ENV: &str = "PRISM_ATOMIC_KILL_TARGET";
+/// The variable that turns [`child_replaces_the_folder_forever`] on and names its folder.
+const FOLDER_ENV: &str = "PRISM_ATOMIC_KILL_FOLDER";
+/// Files of one version of the replaced folder.
+const FOLDER_FILES: [&str; 3] = ["model.bpk", "optimizer.bpk", "state.json"];
 /// Bytes of one version: an 8-byte version number, then the payload.
 const PAYLOAD: usize = 4 << 20;
 const CHUNK: usize = 64 << 10;
@@ -133,4 +142,93 @@ fn names(dir: &Path) -> Vec<String> {
         .collect();
     names.sort();
     names
+}
+
+/// Writes version `v` of the folder: each of [`FOLDER_FILES`] holds a version of [`PAYLOAD`]
+/// bytes.
+fn write_folder_version(dir: &Path, v: u64) {
+    std::fs::create_dir_all(dir).unwrap();
+    for name in FOLDER_FILES {
+        let mut bytes = Vec::new();
+        write_version(&mut bytes, v).unwrap();
+        std::fs::write(dir.join(name), bytes).unwrap();
+    }
+}
+
+/// Checks that `dir` holds exactly the files of one version, and returns it.
+fn complete_folder(dir: &Path) -> u64 {
+    assert_eq!(names(dir), FOLDER_FILES, "{}", dir.display());
+    let versions: Vec<u64> = FOLDER_FILES
+        .iter()
+        .map(|name| complete_version(&dir.join(name)))
+        .collect();
+    assert!(
+        versions.iter().all(|&v| v == versions[0]),
+        "files of several versions: {versions:?}"
+    );
+    versions[0]
+}
+
+/// Not a test of its own: the child process of
+/// [`a_killed_folder_replace_leaves_a_complete_folder`] (ignored, and a no-op without
+/// [`FOLDER_ENV`]).
+#[test]
+#[ignore = "run as a child process by a_killed_folder_replace_leaves_a_complete_folder"]
+fn child_replaces_the_folder_forever() {
+    let Some(dir) = std::env::var_os(FOLDER_ENV) else {
+        return;
+    };
+    let dir = Path::new(&dir);
+    let staged = with_suffix(dir, STAGED_SUFFIX);
+    let mut v = complete_folder(dir);
+    loop {
+        v += 1;
+        // What a checkpoint's save does: recover, stage, replace.
+        recover_dir(dir).unwrap();
+        write_folder_version(&staged, v);
+        replace_dir(&staged, dir).unwrap();
+    }
+}
+
+#[test]
+fn a_killed_folder_replace_leaves_a_complete_folder() {
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("step-00000002");
+    write_folder_version(&dir, 0);
+    let mut seed = 0x9e37_79b9_u64;
+    let (mut changed, mut recovered) = (0, 0);
+    for round in 0..12 {
+        let before = complete_folder(&dir);
+        let mut child = Command::new(std::env::current_exe().unwrap())
+            .args(["--exact", "child_replaces_the_folder_forever", "--ignored"])
+            .env(FOLDER_ENV, &dir)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        // A version is three 4 MiB files: a few ms to write; kill at any point of the loop.
+        seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+        let wait = Duration::from_millis(5 + (seed >> 33) % 56);
+        std::thread::sleep(wait);
+        child.kill().unwrap(); // SIGKILL: no destructor, no cleanup runs.
+        child.wait().unwrap();
+        if recover_dir(&dir).unwrap() {
+            recovered += 1;
+        }
+        let after = complete_folder(&dir);
+        assert!(
+            after >= before,
+            "round {round}: went back from {before} to {after}"
+        );
+        if after > before {
+            changed += 1;
+        }
+        assert_eq!(
+            names(root.path()),
+            ["step-00000002"],
+            "round {round}: leftovers"
+        );
+    }
+    assert!(changed > 0, "no round got past a replace");
+    assert!(recovered > 0, "no round was killed mid-replace");
 }

@@ -6,6 +6,9 @@ use std::path::{Path, PathBuf};
 /// The environment variable holding the token when no `--token-file` is given.
 pub const TOKEN_ENV: &str = "PRISM_TOKEN";
 
+/// The shortest token accepted, in bytes: a shorter one can be guessed.
+pub const MIN_TOKEN_BYTES: usize = 16;
+
 /// Why no token could be read.
 #[derive(Debug, thiserror::Error)]
 pub enum CredentialError {
@@ -26,12 +29,24 @@ pub enum CredentialError {
     /// The file (or the variable) is empty.
     #[error("the token in {0} is empty")]
     Empty(String),
+    /// The token is too short to resist guessing.
+    #[error(
+        "the token in {origin} has {len} bytes, fewer than {MIN_TOKEN_BYTES}: make a good one \
+         with `openssl rand -hex 32 > token` and copy that file to every machine"
+    )]
+    TooShort {
+        /// Where it was read from.
+        origin: String,
+        /// Its length in bytes.
+        len: usize,
+    },
 }
 
 /// The token in `file` (surrounding white space removed), else in `$PRISM_TOKEN`.
 ///
 /// # Errors
-/// No token anywhere, an unreadable file, or an empty token.
+/// No token anywhere, an unreadable file, an empty token or one shorter than
+/// [`MIN_TOKEN_BYTES`].
 pub fn read_token(file: Option<&Path>) -> Result<String, CredentialError> {
     let (token, origin) = match file {
         Some(path) => (
@@ -50,6 +65,12 @@ pub fn read_token(file: Option<&Path>) -> Result<String, CredentialError> {
     if token.is_empty() {
         return Err(CredentialError::Empty(origin));
     }
+    if token.len() < MIN_TOKEN_BYTES {
+        return Err(CredentialError::TooShort {
+            origin,
+            len: token.len(),
+        });
+    }
     Ok(token.to_string())
 }
 
@@ -61,8 +82,15 @@ mod tests {
     fn the_file_is_read_and_trimmed_and_bad_files_are_named() {
         let dir = tempfile::tempdir().unwrap();
         let file = dir.path().join("token");
-        std::fs::write(&file, "s3cret\n").unwrap();
-        assert_eq!(read_token(Some(&file)).unwrap(), "s3cret");
+        std::fs::write(&file, "s3cret-of-16-bytes\n").unwrap();
+        assert_eq!(read_token(Some(&file)).unwrap(), "s3cret-of-16-bytes");
+
+        std::fs::write(&file, "abcd\n").unwrap();
+        let err = read_token(Some(&file)).unwrap_err().to_string();
+        assert!(
+            err.contains("4 bytes") && err.contains("16") && err.contains("openssl rand"),
+            "{err}"
+        );
 
         std::fs::write(&file, " \n").unwrap();
         let err = read_token(Some(&file)).unwrap_err().to_string();

@@ -28,7 +28,7 @@ pub struct Fingerprint {
     pub prism: String,
     /// [`config_digest`] of the model config, when the server was given one.
     pub config: Option<String>,
-    /// [`config_digest`] of the dataset's `dataset.json`: on a trainer, the run's dataset; on
+    /// [`crate::dataset_digest`] of the dataset: on a trainer, the run's dataset; on
     /// a server, the dataset it loads its shares of each batch from (`--data`), if any.
     #[serde(default)]
     pub data: Option<String>,

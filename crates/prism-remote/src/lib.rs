@@ -14,7 +14,7 @@ pub mod shard;
 pub mod spec;
 
 pub use connect::{ConnectError, Connected, accepts_connections, connect};
-pub use credential::{CredentialError, TOKEN_ENV, read_token};
+pub use credential::{CredentialError, MIN_TOKEN_BYTES, TOKEN_ENV, read_token};
 pub use handshake::{Fingerprint, config_digest};
 pub use serve::{ServeError, ServeOptions, TransportKind, serve};
 pub use shard::{ShardRequest, dataset_digest};

@@ -6,7 +6,7 @@
 //! values). Only the item numbers cross the network; the trainer keeps the cameras and body
 //! fits, which it reads without the images.
 
-use std::collections::HashMap;
+use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use burn::backend::ir::{BackendIr, CustomOpIr, HandleContainer};
@@ -22,11 +22,20 @@ use prism_core::served::{self as ops, Call, ServedOp};
 /// The operation's id.
 pub const SHARD_OP: &str = "prism.shard.v1";
 
-/// Bytes of a request (a share of a few hundred items fits).
-const REQUEST_LEN: usize = 8192;
+/// Bytes of a request (a share of a few hundred items fits): the length of the call's input.
+pub const REQUEST_LEN: usize = 8192;
 
-/// Bytes of the server's status answer (empty when the share was loaded, else why not).
-const STATUS_LEN: usize = 1024;
+/// Bytes of the server's status answer (empty when the share was loaded, else why not): the
+/// length of the call's last output.
+pub const STATUS_LEN: usize = 1024;
+
+/// The largest sample side a server loads, pixels.
+pub const MAX_RESOLUTION: u32 = 4096;
+/// The most values (all planes of all pairs) of one share: 4 GiB of `f32`.
+pub const MAX_SHARE_VALUES: usize = 1 << 30;
+/// The most training sets (one per targets, resolution and seed) a server keeps open; beyond
+/// it the least recently used one is closed.
+pub const MAX_TRAINING_SETS: usize = 4;
 
 /// A device's share of a training step, as the trainer asks its server for it.
 #[derive(Clone, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -41,11 +50,48 @@ pub struct ShardRequest {
     pub items: Vec<usize>,
 }
 
-/// The digest of the dataset opened by `reader` (its `dataset.json`): a trainer and a server
-/// with equal digests hold the same dataset.
-pub fn dataset_digest(reader: &DatasetReader) -> String {
-    let meta = serde_json::to_string(reader.meta()).expect("a dataset's meta serialises");
-    config_digest(&meta)
+/// The digest of the dataset opened by `reader`: its `dataset.json` and the list of its files
+/// (relative paths, sorted, with their sizes; hidden files left out). A trainer and a server
+/// with equal digests hold the same dataset; a stale copy with the same metadata but a file
+/// missing, added or of another size differs.
+///
+/// # Errors
+/// A folder of the dataset that cannot be listed, naming it.
+pub fn dataset_digest(reader: &DatasetReader) -> std::io::Result<String> {
+    let mut text = serde_json::to_string(reader.meta()).expect("a dataset's meta serialises");
+    let mut files = Vec::new();
+    list_files(reader.root(), reader.root(), &mut files)?;
+    files.sort();
+    for (path, size) in files {
+        text.push_str(&format!("\n{path}\t{size}"));
+    }
+    Ok(config_digest(&text))
+}
+
+/// Appends the files under `dir` (recursively, hidden names left out) to `out`, as paths
+/// relative to `root` with `/` separators, and sizes.
+fn list_files(root: &Path, dir: &Path, out: &mut Vec<(String, u64)>) -> std::io::Result<()> {
+    let named =
+        |e: std::io::Error| std::io::Error::new(e.kind(), format!("{}: {e}", dir.display()));
+    for entry in std::fs::read_dir(dir).map_err(named)? {
+        let entry = entry.map_err(named)?;
+        if entry.file_name().to_string_lossy().starts_with('.') {
+            continue;
+        }
+        let path = entry.path();
+        let meta = entry.metadata().map_err(named)?;
+        if meta.is_dir() {
+            list_files(root, &path, out)?;
+        } else {
+            let relative = path.strip_prefix(root).unwrap_or(&path);
+            let parts: Vec<String> = relative
+                .components()
+                .map(|c| c.as_os_str().to_string_lossy().into_owned())
+                .collect();
+            out.push((parts.join("/"), meta.len()));
+        }
+    }
+    Ok(())
 }
 
 /// `server` loading shares from the dataset of `reader` on the backend of `device`.
@@ -62,7 +108,7 @@ pub fn register(
         device,
         Loader {
             reader,
-            training_sets: Arc::default(),
+            training_sets: Arc::new(Mutex::new(Recent::new(MAX_TRAINING_SETS))),
         },
     )
 }
@@ -81,13 +127,13 @@ pub fn load(device: &Device, request: &ShardRequest) -> Result<[Tensor<4>; 7], S
             request.items.len()
         ));
     }
-    let pairs = request.items.len() * request.targets;
-    let side = request.resolution as usize;
-    let call = PIXEL_PLANES
-        .iter()
+    request.check_limits()?;
+    let call = request
+        .plane_shapes()
+        .into_iter()
         .fold(
             Call::new(device)?.input(ops::encode(&json, REQUEST_LEN)),
-            |call, &c| call.output([pairs, c, side, side]),
+            Call::output,
         )
         .output([STATUS_LEN]);
     let mut outputs = call.send(SHARD_OP);
@@ -101,8 +147,95 @@ pub fn load(device: &Device, request: &ShardRequest) -> Result<[Tensor<4>; 7], S
     }))
 }
 
-/// The training sets a server was asked for, by (targets, resolution, seed).
-type TrainingSets = HashMap<(usize, u32, u64), Arc<SampleDataset>>;
+/// The training sets a server keeps open, by (targets, resolution, seed).
+type TrainingSets = Recent<(usize, u32, u64), Arc<SampleDataset>>;
+
+/// A cache of at most `capacity` values, the most recently used first: beyond it the least
+/// recently used value is dropped.
+#[derive(Debug)]
+pub struct Recent<K, V> {
+    entries: Vec<(K, V)>,
+    capacity: usize,
+}
+
+impl<K: PartialEq, V: Clone> Recent<K, V> {
+    /// An empty cache of at most `capacity` values.
+    pub fn new(capacity: usize) -> Self {
+        Self {
+            entries: Vec::new(),
+            capacity,
+        }
+    }
+
+    /// The value of `key`, made by `make` if it is not cached; it becomes the most recent.
+    ///
+    /// # Errors
+    /// `make`'s error (nothing is cached then).
+    pub fn get_or_try_insert<E>(
+        &mut self,
+        key: K,
+        make: impl FnOnce() -> Result<V, E>,
+    ) -> Result<V, E> {
+        let value = match self.entries.iter().position(|(k, _)| *k == key) {
+            Some(at) => self.entries.remove(at).1,
+            None => make()?,
+        };
+        self.entries.insert(0, (key, value.clone()));
+        self.entries.truncate(self.capacity);
+        Ok(value)
+    }
+
+    /// The values cached.
+    pub fn len(&self) -> usize {
+        self.entries.len()
+    }
+
+    /// Whether nothing is cached.
+    pub fn is_empty(&self) -> bool {
+        self.entries.is_empty()
+    }
+}
+
+impl ShardRequest {
+    /// Checks the request against the server's limits, before anything is allocated for it.
+    ///
+    /// # Errors
+    /// The limit it exceeds, named with its value.
+    pub fn check_limits(&self) -> Result<(), String> {
+        if self.resolution == 0 || self.resolution > MAX_RESOLUTION {
+            return Err(format!(
+                "a resolution of {} px is outside the server's limit of 1 to {MAX_RESOLUTION}",
+                self.resolution
+            ));
+        }
+        let side = self.resolution as usize;
+        let values = self
+            .items
+            .len()
+            .checked_mul(self.targets)
+            .and_then(|pairs| pairs.checked_mul(PIXEL_PLANES.iter().sum::<usize>()))
+            .and_then(|v| v.checked_mul(side * side));
+        match values {
+            Some(v) if v <= MAX_SHARE_VALUES => Ok(()),
+            _ => Err(format!(
+                "a share of {} items x {} targets at {side} px exceeds the server's limit of \
+                 {MAX_SHARE_VALUES} values",
+                self.items.len(),
+                self.targets
+            )),
+        }
+    }
+
+    /// The shapes of the share's planes, in the order of `PIXEL_PLANES`.
+    fn plane_shapes(&self) -> Vec<[usize; 4]> {
+        let side = self.resolution as usize;
+        let pairs = self.items.len() * self.targets;
+        PIXEL_PLANES
+            .iter()
+            .map(|&c| [pairs, c, side, side])
+            .collect()
+    }
+}
 
 /// The server's handler: the training sets asked for, opened once each.
 #[derive(Clone)]
@@ -112,31 +245,28 @@ struct Loader {
 }
 
 impl Loader {
+    /// The training set of `request`, opened or taken from the cache (kept bounded).
+    fn training_set(&self, request: &ShardRequest) -> Result<Arc<SampleDataset>, String> {
+        let key = (request.targets, request.resolution, request.seed);
+        let mut sets = self
+            .training_sets
+            .lock()
+            .map_err(|_| "the server's dataset cache is poisoned".to_string())?;
+        sets.get_or_try_insert(key, || {
+            SampleDataset::training(
+                self.reader.clone(),
+                request.targets,
+                request.resolution,
+                request.seed,
+            )
+            .map(Arc::new)
+            .map_err(|e| e.to_string())
+        })
+    }
+
     /// The planes of `request`'s share, or why they cannot be loaded.
     fn planes(&self, request: &ShardRequest) -> Result<[TensorData; 7], String> {
-        let key = (request.targets, request.resolution, request.seed);
-        let set = {
-            let mut sets = self
-                .training_sets
-                .lock()
-                .map_err(|_| "the server's dataset cache is poisoned".to_string())?;
-            match sets.get(&key) {
-                Some(set) => set.clone(),
-                None => {
-                    let set = Arc::new(
-                        SampleDataset::training(
-                            self.reader.clone(),
-                            request.targets,
-                            request.resolution,
-                            request.seed,
-                        )
-                        .map_err(|e| e.to_string())?,
-                    );
-                    sets.insert(key, set.clone());
-                    set
-                }
-            }
-        };
+        let set = self.training_set(request)?;
         let samples = request
             .items
             .par_iter()
@@ -162,20 +292,23 @@ impl ServedOp for Loader {
         let request =
             serde_json::from_slice::<ShardRequest>(&ops::input_message::<B>(handles, op, 0))
                 .map_err(|e| format!("not a share request ({e})"));
-        let planes = request.and_then(|r| self.planes(&r)).and_then(|planes| {
-            match planes
-                .iter()
-                .zip(&op.outputs)
-                .find(|(data, out)| *data.shape() != out.shape)
-            {
-                Some((data, out)) => Err(format!(
-                    "the share's planes are {:?}, the trainer expects {:?}",
-                    data.shape(),
-                    out.shape
-                )),
-                None => Ok(planes),
+        // Within the limits, and the outputs declared are the request's: checked before
+        // anything is loaded or allocated.
+        let request = request.and_then(|r| r.check_limits().map(|()| r));
+        let request = request.and_then(|r| {
+            let declared: Vec<&[usize]> = op.outputs.iter().map(|o| &o.shape[..]).collect();
+            let wanted = r.plane_shapes();
+            let mut expected: Vec<&[usize]> = wanted.iter().map(|s| &s[..]).collect();
+            expected.push(&[STATUS_LEN]);
+            if declared == expected {
+                Ok(r)
+            } else {
+                Err(format!(
+                    "the call declares outputs {declared:?}, the request makes {expected:?}"
+                ))
             }
         });
+        let planes = request.and_then(|r| self.planes(&r));
         let status = match planes {
             Ok(planes) => {
                 for (index, data) in planes.into_iter().enumerate() {
@@ -185,9 +318,11 @@ impl ServedOp for Loader {
             }
             Err(why) => {
                 eprintln!("prism serve: cannot load a share: {why}");
-                for (index, out) in op.outputs[..PIXEL_PLANES.len()].iter().enumerate() {
-                    let zeros = TensorData::zeros::<f32, _>(out.shape.clone());
-                    ops::put_output::<B>(handles, op, index, zeros, device);
+                // One value each, whatever the call declared: nothing a caller sizes is
+                // allocated for a refused share (the trainer reads the status, not these).
+                for index in 0..PIXEL_PLANES.len().min(op.outputs.len()) {
+                    let zero = TensorData::new(vec![0.0f32], [1]);
+                    ops::put_output::<B>(handles, op, index, zero, device);
                 }
                 let mut why = format!("the server cannot load its share: {why}").into_bytes();
                 why.truncate(STATUS_LEN);
@@ -196,5 +331,57 @@ impl ServedOp for Loader {
         };
         let status = TensorData::new(ops::encode(&status, STATUS_LEN), [STATUS_LEN]);
         ops::put_output::<B>(handles, op, PIXEL_PLANES.len(), status, device);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_cache_keeps_the_most_recent_values_up_to_its_capacity() {
+        let mut cache = Recent::new(2);
+        let made = std::cell::Cell::new(0);
+        let get = |cache: &mut Recent<u64, u64>, key: u64| {
+            cache
+                .get_or_try_insert(key, || {
+                    made.set(made.get() + 1);
+                    Ok::<_, ()>(key * 10)
+                })
+                .unwrap()
+        };
+        assert_eq!(get(&mut cache, 1), 10);
+        assert_eq!(get(&mut cache, 2), 20);
+        assert_eq!(get(&mut cache, 1), 10); // cached: 1 is now the most recent
+        assert_eq!(get(&mut cache, 3), 30); // drops 2, the least recent
+        assert_eq!(cache.len(), 2);
+        assert_eq!(get(&mut cache, 1), 10);
+        assert_eq!(get(&mut cache, 2), 20); // made again
+        assert_eq!(made.get(), 4);
+        // A flood of keys never grows it past its capacity.
+        for key in 100..200 {
+            get(&mut cache, key);
+        }
+        assert_eq!(cache.len(), 2);
+        let failed = cache.get_or_try_insert(7, || Err::<u64, _>("cannot"));
+        assert_eq!(failed, Err("cannot"));
+        assert_eq!(cache.len(), 2);
+    }
+
+    #[test]
+    fn requests_past_the_limits_are_refused_naming_the_limit() {
+        let request = |resolution, items: usize, targets| ShardRequest {
+            targets,
+            resolution,
+            seed: 0,
+            items: (0..items).collect(),
+        };
+        assert!(request(256, 8, 4).check_limits().is_ok());
+        let side = request(100_000, 1, 1).check_limits().unwrap_err();
+        assert!(side.contains("limit of 1 to 4096"), "{side}");
+        assert!(request(0, 1, 1).check_limits().is_err());
+        let big = request(4096, 100, 4).check_limits().unwrap_err();
+        assert!(big.contains(&MAX_SHARE_VALUES.to_string()), "{big}");
+        assert!(request(4096, 1, usize::MAX).check_limits().is_err());
     }
 }

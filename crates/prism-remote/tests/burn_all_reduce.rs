@@ -22,8 +22,12 @@ use common::served_device;
 fn burn_cannot_all_reduce_across_two_servers() {
     let (a, b) = (served_device(), served_device());
     let x = Tensor::<1>::from_floats([1.0, 2.0], &a);
+    // Read back, so that the collective runs even where the remote backend queues operations
+    // (Burn's fusion, in the GPU build).
     let refused = catch_unwind(AssertUnwindSafe(|| {
         all_reduce(x, ReduceOperation::Sum, vec![a.clone(), b.clone()])
+            .resolve()
+            .into_data()
     }));
     let message = match refused {
         Ok(_) => panic!("Burn all-reduced across servers: switch the trainer to all_reduce"),

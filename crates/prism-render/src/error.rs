@@ -6,7 +6,7 @@ use std::path::PathBuf;
 #[derive(Debug, thiserror::Error)]
 pub enum RenderError {
     /// Tensor shapes or cameras that do not fit together.
-    #[error("invalid splat input: {0}")]
+    #[error("invalid render input: {0}")]
     Input(String),
     /// A value given by the user (such as a background colour) is not valid.
     #[error("{0}")]

@@ -11,6 +11,7 @@
 //! `[B, C, H, W]` tensors.
 
 pub mod error;
+pub mod image_size;
 #[cfg(any(feature = "wgpu", feature = "cuda"))]
 mod launch;
 pub mod mesh;

@@ -30,18 +30,21 @@ use crate::splat::op::{SplatBackend, SplatCameras, SplatInputs, SplatTaped};
 use crate::triplane::op::{TriplaneBackend, TriplaneTaped};
 
 /// Triplane sampling: planes, coordinates -> samples.
-const TRIPLANE_FORWARD: &str = "prism.triplane.forward.v1";
+pub const TRIPLANE_FORWARD: &str = "prism.triplane.forward.v1";
 /// Its reverse pass: planes, coordinates, `dL/d(samples)` -> gradients of both inputs.
-const TRIPLANE_BACKWARD: &str = "prism.triplane.backward.v1";
+pub const TRIPLANE_BACKWARD: &str = "prism.triplane.backward.v1";
 /// Gaussian splatting: the five Gaussian tensors, cameras -> image.
-const SPLAT_FORWARD: &str = "prism.splat.forward.v1";
+pub const SPLAT_FORWARD: &str = "prism.splat.forward.v1";
 /// Its reverse pass: the five tensors, cameras, `dL/d(image)` -> the five gradients.
-const SPLAT_BACKWARD: &str = "prism.splat.backward.v1";
+pub const SPLAT_BACKWARD: &str = "prism.splat.backward.v1";
 /// Mesh rasterization: vertices, faces, cameras -> faces, barycentrics and depth per pixel.
-const MESH_RASTERIZE: &str = "prism.mesh.rasterize.v1";
+pub const MESH_RASTERIZE: &str = "prism.mesh.rasterize.v1";
 
 /// `f32` values per camera: `fx fy cx cy width height` and the 16 entries of `c2w`.
-const CAMERA_VALUES: usize = 22;
+pub const CAMERA_VALUES: usize = 22;
+
+/// The most values a served geometry operation writes (all its outputs): 4 GiB of `f32`.
+pub const MAX_OUTPUT_VALUES: usize = 1 << 30;
 
 /// `server` running prism's geometry operations on the backend of `device`.
 ///
@@ -61,8 +64,8 @@ fn call_beside(tensor: &ServerTensor) -> Call {
     Call::new(&Device::from(tensor.device())).expect("a remote tensor is on a served device")
 }
 
-/// `cameras` as `f32` values ([`CAMERA_VALUES`] each).
-fn encode_cameras(cameras: &[Camera]) -> Vec<f32> {
+/// `cameras` as `f32` values ([`CAMERA_VALUES`] each): how they travel to a server.
+pub fn encode_cameras(cameras: &[Camera]) -> Vec<f32> {
     cameras
         .iter()
         .flat_map(|c| {
@@ -97,6 +100,43 @@ fn decode_cameras(values: &[f32]) -> Vec<Camera> {
 fn image_size(cameras: &[Camera]) -> (usize, usize) {
     let k = cameras.first().expect("at least one camera").intrinsics;
     (k.height as usize, k.width as usize)
+}
+
+/// Checks a call's cameras, decoded on the server, before anything is allocated for it: one
+/// per batch element, one size within [`crate::image_size::MAX_IMAGE_SIDE`], and at most
+/// [`MAX_OUTPUT_VALUES`] values written for `channels` values per pixel.
+fn check_cameras(cameras: &[Camera], batch: usize, channels: usize) -> Result<(), String> {
+    let (w, h) = crate::image_size::image_size(cameras).map_err(|e| e.to_string())?;
+    if cameras.len() != batch {
+        return Err(format!("{} cameras for a batch of {batch}", cameras.len()));
+    }
+    check_output(&[batch, channels, h as usize, w as usize])
+}
+
+/// Checks that an output of `shape` stays within [`MAX_OUTPUT_VALUES`].
+fn check_output(shape: &[usize]) -> Result<(), String> {
+    match shape.iter().try_fold(1usize, |n, &d| n.checked_mul(d)) {
+        Some(n) if n <= MAX_OUTPUT_VALUES => Ok(()),
+        _ => Err(format!(
+            "an output of {shape:?} exceeds the limit of {MAX_OUTPUT_VALUES} values"
+        )),
+    }
+}
+
+/// Checks that every face indexes one of `vertices` vertices.
+fn check_faces(faces: &[[u32; 3]], vertices: usize) -> Result<(), String> {
+    crate::mesh::check_faces(faces, vertices).map_err(|e| e.to_string())
+}
+
+/// Refuses a call whose inputs fail a check: the server says why and drops the session that
+/// sent it (Burn's server catches the panic of one session's operation), and keeps serving.
+/// A trainer never sends such a call: the same checks fail on its side first, with the same
+/// message ([`crate::splat::render`], [`crate::mesh::rasterize_maps`]).
+fn refuse_unless(op: &CustomOpIr, check: Result<(), String>) {
+    if let Err(why) = check {
+        eprintln!("prism serve: refused a call of {}: {why}", op.id);
+        panic!("refused a call of {}: {why}", op.id);
+    }
 }
 
 /// Input `index` of `op` on the server, as a tensor of `B`.
@@ -173,6 +213,8 @@ fn triplane_forward<B: BackendIr + TriplaneBackend>(
     _device: &B::Device,
 ) {
     let (planes, coords) = (input::<B>(handles, op, 0), input::<B>(handles, op, 1));
+    let (p, c) = (planes.shape(), coords.shape());
+    refuse_unless(op, check_output(&[c[0], p[1], c[2], c[3]]));
     outputs::<B>(handles, op, [B::triplane_sample(planes, coords)]);
 }
 
@@ -283,6 +325,8 @@ fn splat_forward<B: BackendIr + SplatBackend>(
     _device: &B::Device,
 ) {
     let (inputs, cameras) = gaussians_and_cameras::<B>(handles, op);
+    let [b, _, c] = inputs.features.shape().dims();
+    refuse_unless(op, check_cameras(&cameras.0, b, c + 2));
     outputs::<B>(handles, op, [B::splat_rasterize(inputs, cameras)]);
 }
 
@@ -292,6 +336,8 @@ fn splat_backward<B: BackendIr + SplatTaped>(
     _device: &B::Device,
 ) {
     let (inputs, cameras) = gaussians_and_cameras::<B>(handles, op);
+    let [b, _, c] = inputs.features.shape().dims();
+    refuse_unless(op, check_cameras(&cameras.0, b, c + 2));
     let grad = input::<B>(handles, op, 6);
     let (_, tape) = B::forward_taped(inputs, &cameras);
     let g = B::backward_taped(tape, &cameras, grad);
@@ -346,6 +392,10 @@ fn mesh_rasterize<B: BackendIr + MeshBackend>(
         .map(|f| [f[0] as u32, f[1] as u32, f[2] as u32])
         .collect();
     let cameras = decode_cameras(&input_values::<B>(handles, op, 2));
+    let [b, v, _] = vertices.shape().dims();
+    // Faces, barycentrics (3) and depth: five values per pixel.
+    refuse_unless(op, check_cameras(&cameras, b, 5));
+    refuse_unless(op, check_faces(&faces, v));
     let maps = B::mesh_rasterize(
         vertices,
         MeshFaces(Arc::from(faces)),
@@ -369,5 +419,33 @@ mod tests {
         let values = encode_cameras(&cameras);
         assert_eq!(values.len(), 2 * CAMERA_VALUES);
         assert_eq!(decode_cameras(&values), cameras);
+    }
+
+    /// What a server refuses before allocating: huge or mismatched cameras, outputs past the
+    /// limit, faces past the vertices. Each message names the limit or the index.
+    #[test]
+    fn calls_past_the_limits_are_refused_with_the_limit_named() {
+        let camera = |w, h| {
+            Camera::look_at(
+                Vec3::Z,
+                Vec3::ZERO,
+                Vec3::Y,
+                Intrinsics::protocol_default(w, h),
+            )
+        };
+        assert!(check_cameras(&[camera(64, 48)], 1, 5).is_ok());
+        let huge = check_cameras(&[camera(100_000, 100_000)], 1, 5).unwrap_err();
+        assert!(huge.contains("limit of 4096"), "{huge}");
+        let count = check_cameras(&[camera(64, 48)], 3, 5).unwrap_err();
+        assert!(count.contains("1 cameras for a batch of 3"), "{count}");
+        let big = check_cameras(&[camera(4096, 4096); 16], 16, 5).unwrap_err();
+        assert!(big.contains(&MAX_OUTPUT_VALUES.to_string()), "{big}");
+        assert!(check_output(&[usize::MAX, 2]).is_err());
+        assert!(check_faces(&[[0, 1, 2]], 3).is_ok());
+        let face = check_faces(&[[0, 1, 2], [2, 3, 1]], 3).unwrap_err();
+        assert!(
+            face.contains("[2, 3, 1]") && face.contains("3 vertices"),
+            "{face}"
+        );
     }
 }

@@ -274,6 +274,7 @@ fn tensor_fragments_are_the_host_fragments_on_the_cpu() {
 /// there, and no read from the device.
 #[cfg(feature = "wgpu")]
 #[test]
+#[cfg_attr(not(wgpu_adapter), ignore = "no wgpu adapter on this machine")]
 fn the_device_rasterizer_matches_the_host() {
     let _serial = common::serial();
     let Some(gpu) = common::wgpu() else { return };

@@ -127,6 +127,7 @@ fn check_gradients(seed: u64, camera: Camera, channels: usize) {
 /// The device kernels (wgpu) against finite differences on the same scenes.
 #[cfg(feature = "wgpu")]
 #[test]
+#[cfg_attr(not(wgpu_adapter), ignore = "no wgpu adapter on this machine")]
 fn device_gradients_match_finite_differences() {
     let _serial = common::serial();
     let Some(gpu) = common::wgpu() else { return };

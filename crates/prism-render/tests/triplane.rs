@@ -96,6 +96,7 @@ fn gradients_match_finite_differences() {
 /// coordinates that also leave the planes (border clamping).
 #[cfg(feature = "wgpu")]
 #[test]
+#[cfg_attr(not(wgpu_adapter), ignore = "no wgpu adapter on this machine")]
 fn the_device_kernels_match_finite_differences_and_the_host() {
     let _serial = common::serial();
     let Some(gpu) = common::wgpu() else { return };

@@ -12,9 +12,11 @@
 //! | `state.json` | step, seed (the data order is a pure function of seed and step), counters, precision and loss scale |
 //! | `config.toml` | the full training config of the run |
 //!
-//! A checkpoint is written into `step-NNNNNNNN.partial/` and renamed when complete, so a killed
-//! run never leaves a half-written checkpoint under its final name; leftovers are removed by
-//! the next run.
+//! A checkpoint is written into `step-NNNNNNNN.partial/` and moved in when complete by
+//! [`prism_core::files::replace_dir`] (a folder it replaces is put aside as `.old` until the new
+//! one is in), so a run killed at any moment leaves a complete checkpoint, and never a
+//! half-written one under its final name; the next run recovers the folder and removes the
+//! leftovers ([`recover_checkpoints`]).
 
 use std::fs;
 use std::path::{Path, PathBuf};
@@ -24,6 +26,7 @@ use burn::optim::lr_scheduler::LrSchedulerRecord;
 use burn::optim::lr_scheduler::module_lr_scheduler::ModuleLrScheduler;
 use burn::optim::{ModuleOptimizer, OptimizerRecord};
 use burn::tensor::Device;
+use prism_core::files::{ASIDE_SUFFIX, STAGED_SUFFIX, recover_dir, replace_dir, with_suffix};
 use prism_model::{AttentionKind, Precision, Prism, PrismConfig};
 use serde::{Deserialize, Serialize};
 
@@ -37,8 +40,6 @@ pub const CHECKPOINTS_DIR: &str = "checkpoints";
 pub const CHECKPOINT_FORMAT: &str = "prism-checkpoint";
 /// Version of the checkpoint layout.
 pub const CHECKPOINT_VERSION: u32 = 1;
-/// Suffix of a checkpoint being written.
-const PARTIAL_SUFFIX: &str = ".partial";
 
 /// File names inside a checkpoint folder.
 pub mod files {
@@ -122,6 +123,15 @@ impl Checkpoint {
             latest_checkpoint(path)?.ok_or_else(|| {
                 TrainError::checkpoint(path, "the run folder holds no complete checkpoint")
             })?
+        } else if with_suffix(path, ASIDE_SUFFIX).join(files::STATE).is_file() {
+            return Err(TrainError::checkpoint(
+                path,
+                format!(
+                    "missing: a replace of this checkpoint was interrupted, and its previous \
+                     version is {} (rename it back)",
+                    with_suffix(path, ASIDE_SUFFIX).display()
+                ),
+            ));
         } else {
             return Err(TrainError::checkpoint(
                 path,
@@ -259,26 +269,38 @@ pub fn latest_checkpoint(run: &Path) -> Result<Option<PathBuf>> {
     Ok(list_checkpoints(run)?.pop().map(|(_, p)| p))
 }
 
-/// Removes checkpoints left half-written by a killed run.
+/// Recovers the checkpoints of a run killed while it saved one: a checkpoint whose replace was
+/// interrupted gets its complete folder back under its name, and half-written folders are
+/// removed (see [`recover_dir`]).
 ///
 /// # Errors
 /// I/O errors.
-pub fn remove_partial_checkpoints(run: &Path) -> Result<()> {
+pub fn recover_checkpoints(run: &Path) -> Result<()> {
     let dir = run.join(CHECKPOINTS_DIR);
     if !dir.is_dir() {
         return Ok(());
     }
     for entry in fs::read_dir(&dir).map_err(|e| TrainError::io(&dir, e))? {
         let entry = entry.map_err(|e| TrainError::io(&dir, e))?;
-        if entry
-            .file_name()
-            .to_string_lossy()
-            .ends_with(PARTIAL_SUFFIX)
+        let name = entry.file_name().to_string_lossy().into_owned();
+        if let Some(base) = name
+            .strip_suffix(STAGED_SUFFIX)
+            .or_else(|| name.strip_suffix(ASIDE_SUFFIX))
         {
-            fs::remove_dir_all(entry.path()).map_err(|e| TrainError::io(entry.path(), e))?;
+            let checkpoint = dir.join(base);
+            recover_dir(&checkpoint).map_err(|e| TrainError::io(&checkpoint, e))?;
         }
     }
     Ok(())
+}
+
+/// Writes a checkpoint folder `dir` through `write` (into `dir.partial`), then replaces `dir`
+/// with it (see [`replace_dir`]), after recovering a replace of `dir` that a crash interrupted.
+fn write_checkpoint_dir(dir: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+    recover_dir(dir).map_err(|e| TrainError::io(dir, e))?;
+    let staged = with_suffix(dir, STAGED_SUFFIX);
+    write(&staged)?;
+    replace_dir(&staged, dir).map_err(|e| TrainError::io(dir, e))
 }
 
 /// What a checkpoint saves.
@@ -334,8 +356,8 @@ pub fn write_checkpoint_files(dir: &Path, contents: &CheckpointContents<'_>) -> 
 /// Writes a checkpoint folder `dir` holding `model` as step 0 of a run of `config` (fresh
 /// optimizer and schedulers; `new_blocks` as [`CheckpointState::new_blocks`]), for `task`
 /// (e.g. a converted pretrained model): what
-/// `evaluate`, `infer` and `train-teacher --init` read. Written into `DIR.partial` and renamed,
-/// replacing `dir`.
+/// `evaluate`, `infer` and `train-teacher --init` read. Written into `DIR.partial` and moved in,
+/// replacing `dir` (see [`replace_dir`]).
 ///
 /// # Errors
 /// I/O or serialisation errors.
@@ -382,26 +404,18 @@ pub fn save_model_checkpoint(
         new_blocks,
         config.model.stage_one_blocks,
     );
-    let mut partial = dir.as_os_str().to_owned();
-    partial.push(PARTIAL_SUFFIX);
-    let partial = PathBuf::from(partial);
-    if partial.exists() {
-        fs::remove_dir_all(&partial).map_err(|e| TrainError::io(&partial, e))?;
-    }
-    write_checkpoint_files(
-        &partial,
-        &CheckpointContents {
-            state: &state,
-            config,
-            model,
-            optimizer: &optimizer,
-            scheduler: &scheduler,
-        },
-    )?;
-    if dir.exists() {
-        fs::remove_dir_all(dir).map_err(|e| TrainError::io(dir, e))?;
-    }
-    fs::rename(&partial, dir).map_err(|e| TrainError::io(dir, e))
+    write_checkpoint_dir(dir, |staged| {
+        write_checkpoint_files(
+            staged,
+            &CheckpointContents {
+                state: &state,
+                config,
+                model,
+                optimizer: &optimizer,
+                scheduler: &scheduler,
+            },
+        )
+    })
 }
 
 /// Writes the checkpoint of `contents.state.step` into `run` atomically, then keeps only the
@@ -415,18 +429,7 @@ pub fn save_checkpoint(
     keep: usize,
 ) -> Result<PathBuf> {
     let dir = checkpoint_dir(run, contents.state.step);
-    let partial = dir.with_file_name(format!(
-        "{}{PARTIAL_SUFFIX}",
-        dir.file_name().expect("named").to_string_lossy()
-    ));
-    if partial.exists() {
-        fs::remove_dir_all(&partial).map_err(|e| TrainError::io(&partial, e))?;
-    }
-    write_checkpoint_files(&partial, contents)?;
-    if dir.exists() {
-        fs::remove_dir_all(&dir).map_err(|e| TrainError::io(&dir, e))?;
-    }
-    fs::rename(&partial, &dir).map_err(|e| TrainError::io(&dir, e))?;
+    write_checkpoint_dir(&dir, |staged| write_checkpoint_files(staged, contents))?;
     let all = list_checkpoints(run)?;
     for (_, old) in all.iter().take(all.len().saturating_sub(keep.max(1))) {
         fs::remove_dir_all(old).map_err(|e| TrainError::io(old, e))?;

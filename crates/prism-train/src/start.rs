@@ -10,7 +10,7 @@ use prism_core::backend::is_served;
 use prism_model::{Precision, Prism};
 
 use crate::checkpoint::{
-    Checkpoint, check_architecture, check_resumable, latest_checkpoint, remove_partial_checkpoints,
+    Checkpoint, check_architecture, check_resumable, latest_checkpoint, recover_checkpoints,
 };
 use crate::config::TrainingConfig;
 use crate::error::{Result, TrainError};
@@ -59,7 +59,7 @@ pub fn prepare_run_folder(
                 .into(),
         );
     }
-    remove_partial_checkpoints(run)?;
+    recover_checkpoints(run)?;
     let latest = latest_checkpoint(run)?;
     if !options.resume {
         if let Some(latest) = latest {

@@ -170,11 +170,12 @@ pub fn train(config: &TrainingConfig, task: &dyn Task, options: &RunOptions) -> 
     let resumed = prepare_run_folder(&options.out, &config, task, options)?;
     let reader = DatasetReader::open(&options.data)?;
     let train_set = training_set(&reader, &config)?;
+    let digest = dataset_digest(&reader).map_err(|e| TrainError::io(reader.root(), e))?;
     let devices = training_devices(
         options.backend,
         &options.devices,
         options.token.as_deref(),
-        &fingerprint(&config).with_data(dataset_digest(&reader)),
+        &fingerprint(&config).with_data(digest),
     )?;
     let start = initial_model(&config, resumed.as_ref(), options, &devices[0].device)?;
     let first = start.step;

@@ -118,6 +118,45 @@ fn a_resumed_run_reproduces_the_uninterrupted_run() {
     assert_eq!(summary.steps, 9);
 }
 
+/// A checkpoint replace killed after any of its steps (each step's effect is what a kill
+/// there leaves on disk) still leaves a complete checkpoint, and the resumed run starts from it.
+#[test]
+fn a_checkpoint_replace_stopped_at_any_step_leaves_a_checkpoint_to_resume_from() {
+    use prism_core::files::{ReplaceStep, STAGED_SUFFIX, with_suffix};
+    let _serial = common::serial();
+    let config = tiny_config(2, |c| c.train.checkpoint_every = 2);
+    let base = tempfile::tempdir().unwrap();
+    train(&config, &TeacherTask::default(), &options(base.path())).unwrap();
+    for stop in 0..=ReplaceStep::ALL.len() {
+        let run = tempfile::tempdir().unwrap();
+        common::copy_dir(base.path(), run.path());
+        // A new copy of the step-2 checkpoint, staged to replace it.
+        let dir = run.path().join("checkpoints/step-00000002");
+        let staged = with_suffix(&dir, STAGED_SUFFIX);
+        common::copy_dir(&dir, &staged);
+        for step in &ReplaceStep::ALL[..stop] {
+            step.run(&staged, &dir).unwrap();
+        }
+        let mut resume = options(run.path());
+        resume.resume = true;
+        resume.steps = Some(3);
+        let summary = train(&config, &TeacherTask::default(), &resume)
+            .unwrap_or_else(|e| panic!("stopped after {stop} steps: {e}"));
+        assert_eq!((summary.start_step, summary.steps), (2, 3), "stop {stop}");
+        let left: Vec<(usize, PathBuf)> = list_checkpoints(run.path()).unwrap();
+        assert_eq!(
+            left.iter().map(|(s, _)| *s).collect::<Vec<_>>(),
+            [2, 3],
+            "stop {stop}"
+        );
+        let names: Vec<String> = std::fs::read_dir(run.path().join("checkpoints"))
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        assert_eq!(names.len(), 2, "stop {stop}: leftovers in {names:?}");
+    }
+}
+
 #[test]
 fn two_devices_train_like_one() {
     let _serial = common::serial();

@@ -24,6 +24,7 @@ use prism_core::axes::permute;
 pub use raster::{BAND_ROWS, NEAR_PLANE};
 
 use crate::RenderError;
+use crate::image_size::image_size;
 use op::{MeshBackend, MeshCameras, MeshFaces};
 
 /// What [`rasterize`] sees at every pixel centre of `B` cameras of `H x W` pixels. Buffers are
@@ -66,18 +67,14 @@ pub fn rasterize(
             cameras.len()
         )));
     }
-    let (w, h) = check_cameras(cameras)?;
+    let (w, h) = image_size(cameras)?;
     let v = meshes[0].len();
     if meshes.iter().any(|m| m.len() != v) {
         return Err(RenderError::Input(
             "the meshes of a batch must have the same vertex count".into(),
         ));
     }
-    if let Some(f) = faces.iter().find(|f| f.iter().any(|&i| i as usize >= v)) {
-        return Err(RenderError::Input(format!(
-            "face {f:?} indexes past the {v} vertices"
-        )));
-    }
+    check_faces(faces, v)?;
     let (width, height) = (w as usize, h as usize);
     let (faces_out, barycentrics, depth) = raster::rasterize(meshes, faces, cameras, width, height);
     Ok(Fragments {
@@ -202,12 +199,8 @@ pub fn rasterize_maps(
             cameras.len()
         )));
     }
-    check_cameras(cameras)?;
-    if let Some(f) = faces.iter().find(|f| f.iter().any(|&i| i as usize >= v)) {
-        return Err(RenderError::Input(format!(
-            "face {f:?} indexes past the {v} vertices"
-        )));
-    }
+    image_size(cameras)?;
+    check_faces(faces, v)?;
     let out = <Dispatch as MeshBackend>::mesh_rasterize(
         vertices.inner().into_dispatch(),
         MeshFaces(Arc::from(faces)),
@@ -260,23 +253,18 @@ impl FragmentMaps {
     }
 }
 
-/// Checks that there is a camera and that all share one non-empty image size: `(width, height)`.
-fn check_cameras(cameras: &[Camera]) -> Result<(u32, u32), RenderError> {
-    let Some(first) = cameras.first() else {
-        return Err(RenderError::Input("no camera".into()));
-    };
-    let (w, h) = (first.intrinsics.width, first.intrinsics.height);
-    if w == 0 || h == 0 {
-        return Err(RenderError::Input(format!("empty image size {w}x{h}")));
-    }
-    if let Some(c) = cameras
+/// Checks that every face indexes one of `vertices` vertices.
+///
+/// # Errors
+/// [`RenderError::Input`] naming the first face that does not.
+pub(crate) fn check_faces(faces: &[[u32; 3]], vertices: usize) -> Result<(), RenderError> {
+    match faces
         .iter()
-        .find(|c| (c.intrinsics.width, c.intrinsics.height) != (w, h))
+        .find(|f| f.iter().any(|&i| i as usize >= vertices))
     {
-        return Err(RenderError::Input(format!(
-            "cameras of one batch must share one image size, got {w}x{h} and {}x{}",
-            c.intrinsics.width, c.intrinsics.height
-        )));
+        Some(f) => Err(RenderError::Input(format!(
+            "face {f:?} indexes past the {vertices} vertices"
+        ))),
+        None => Ok(()),
     }
-    Ok((w, h))
 }

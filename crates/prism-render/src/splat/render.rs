@@ -108,17 +108,7 @@ pub fn render(gaussians: &Gaussians, cameras: &[Camera]) -> Result<Rendered, Ren
             cameras.len()
         )));
     }
-    let size = |cam: &Camera| (cam.intrinsics.width, cam.intrinsics.height);
-    let (w, h) = size(&cameras[0]);
-    if w == 0 || h == 0 {
-        return Err(RenderError::Input(format!("empty image size {w}x{h}")));
-    }
-    if let Some(other) = cameras.iter().find(|cam| size(cam) != (w, h)) {
-        let (w2, h2) = size(other);
-        return Err(RenderError::Input(format!(
-            "cameras of one batch must share one image size, got {w}x{h} and {w2}x{h2}"
-        )));
-    }
+    crate::image_size::image_size(cameras)?;
     let inputs = SplatInputs {
         means: gaussians.means.clone().into_dispatch(),
         log_scales: gaussians.log_scales.clone().into_dispatch(),
