@@ -170,7 +170,9 @@ fn curve(dir: &Path) -> Vec<(f64, f64)> {
 /// Asserts that two runs took steps of the same loss and gradient norm, to `1e-4` relative.
 /// AdamW's update divides a gradient by its own running size, so comparing weights alone would
 /// let a gradient wrong by any positive factor (a sum instead of a mean across devices) pass;
-/// the gradient norm doubles under such a factor.
+/// the gradient norm doubles under such a factor. Tried: with a factor of 2 planted in the
+/// combined gradient of every step of several devices, `served_devices_train_like_one_local_device`
+/// fails at step 1 (gradient norm 1.2806 against 0.6403).
 fn assert_same_curve(got: &Path, want: &Path) {
     let (got, want) = (curve(got), curve(want));
     assert!(

@@ -25,7 +25,8 @@ use serde::Serialize;
 ///
 /// # Errors
 /// Any I/O error of staging, syncing or renaming, or the one `write` returns; `path` is then
-/// untouched and nothing is left behind.
+/// untouched and nothing is left behind. An error of the folder's sync after the rename is
+/// returned too: `path` then holds the new contents, which a power cut could still undo.
 pub fn write_atomic(
     path: &Path,
     write: impl FnOnce(&mut dyn Write) -> io::Result<()>,
@@ -113,10 +114,7 @@ impl Staged {
             None => {
                 // Straight to the target when it does not exist yet: no name in between.
                 match unnamed::link(&self.file, path) {
-                    Ok(()) => {
-                        sync_folder(path);
-                        return Ok(());
-                    }
+                    Ok(()) => return try_sync_folder(path),
                     Err(e) if e.kind() == io::ErrorKind::AlreadyExists => {}
                     Err(e) => return Err(e),
                 }
@@ -131,9 +129,8 @@ impl Staged {
             let _ = fs::remove_file(&name);
             return Err(e);
         }
-        sync_folder(path);
         remove_abandoned_copies(path);
-        Ok(())
+        try_sync_folder(path)
     }
 }
 
@@ -181,14 +178,8 @@ impl Drop for Staged {
     }
 }
 
-/// Syncs the folder of `path` so that the rename itself survives a power cut (best effort:
-/// some platforms cannot open a folder for syncing).
-fn sync_folder(path: &Path) {
-    let _ = try_sync_folder(path);
-}
-
-/// Syncs the folder of `path`. On Unix an error is returned; elsewhere (where a folder cannot
-/// be opened for syncing) the sync is skipped.
+/// Syncs the folder of `path`, so that a rename into it survives a power cut. On Unix its error
+/// is returned; elsewhere (where a folder cannot be opened for syncing) the sync is skipped.
 fn try_sync_folder(path: &Path) -> io::Result<()> {
     if cfg!(unix) {
         File::open(folder(path))?.sync_all()
