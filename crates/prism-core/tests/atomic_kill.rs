@@ -84,22 +84,13 @@ fn a_killed_writer_leaves_the_old_or_the_new_file() {
     let (mut changed, mut kept) = (0, 0);
     for round in 0..12 {
         let before = complete_version(&path);
-        let mut child = Command::new(std::env::current_exe().unwrap())
-            .args(["--exact", "child_rewrites_the_file_forever", "--ignored"])
-            .env(TARGET_ENV, &path)
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap();
-        // Kill after 5 to 60 ms of writing (a version takes a few ms): mid-write or between.
-        seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
-        let wait = Duration::from_millis(5 + (seed >> 33) % 56);
-        let start = Instant::now();
-        while start.elapsed() < wait {
-            std::thread::sleep(Duration::from_millis(1));
-        }
-        child.kill().unwrap(); // SIGKILL on Unix: no destructor, no cleanup runs.
-        child.wait().unwrap();
+        // A version takes a few ms: killed mid-write or between.
+        let child = kill_midway(
+            "child_rewrites_the_file_forever",
+            TARGET_ENV,
+            &path,
+            &mut seed,
+        );
         let after = complete_version(&path);
         assert!(
             after >= before,
@@ -110,7 +101,7 @@ fn a_killed_writer_leaves_the_old_or_the_new_file() {
         } else {
             kept += 1;
         }
-        let staged = format!(".state.bin.tmp-{}-", child.id());
+        let staged = format!(".state.bin.tmp-{}-", child);
         let left: Vec<String> = names(dir.path())
             .into_iter()
             .filter(|n| n != "state.bin" && !n.starts_with(".state.bin.tmp-"))
@@ -132,6 +123,28 @@ fn a_killed_writer_leaves_the_old_or_the_new_file() {
         changed > 0,
         "no round got past a write ({kept} kept the old file)"
     );
+}
+
+/// Runs `child`, an ignored test of this binary, with `env` naming `target`, and kills it
+/// (SIGKILL on Unix: no destructor, no cleanup runs) after 5 to 60 ms drawn from `seed`.
+/// Returns its process id.
+fn kill_midway(child: &str, env: &str, target: &Path, seed: &mut u64) -> u32 {
+    let mut process = Command::new(std::env::current_exe().unwrap())
+        .args(["--exact", child, "--ignored"])
+        .env(env, target)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    *seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+    let wait = Duration::from_millis(5 + (*seed >> 33) % 56);
+    let start = Instant::now();
+    while start.elapsed() < wait {
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    process.kill().unwrap();
+    process.wait().unwrap();
+    process.id()
 }
 
 /// The names in `dir`, sorted.
@@ -199,19 +212,13 @@ fn a_killed_folder_replace_leaves_a_complete_folder() {
     let (mut changed, mut recovered) = (0, 0);
     for round in 0..12 {
         let before = complete_folder(&dir);
-        let mut child = Command::new(std::env::current_exe().unwrap())
-            .args(["--exact", "child_replaces_the_folder_forever", "--ignored"])
-            .env(FOLDER_ENV, &dir)
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap();
-        // A version is three 4 MiB files: a few ms to write; kill at any point of the loop.
-        seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
-        let wait = Duration::from_millis(5 + (seed >> 33) % 56);
-        std::thread::sleep(wait);
-        child.kill().unwrap(); // SIGKILL: no destructor, no cleanup runs.
-        child.wait().unwrap();
+        // A version is three 4 MiB files, a few ms to write: killed at any point of the loop.
+        kill_midway(
+            "child_replaces_the_folder_forever",
+            FOLDER_ENV,
+            &dir,
+            &mut seed,
+        );
         if recover_dir(&dir).unwrap() {
             recovered += 1;
         }
