@@ -14,7 +14,7 @@ use prism_losses::LossTerms;
 use prism_model::{Precision, Prism};
 use prism_train::{
     Checkpoint, GRADIENT_OVERFLOW, LossScaleConfig, LossScaleState, RunOptions, StepLoss, Task,
-    TaskData, TeacherTask, TrainError, TrainingConfig, list_checkpoints, read_metrics, train,
+    TeacherTask, TrainError, TrainingConfig, list_checkpoints, read_metrics, train,
 };
 use serde_json::Value;
 
@@ -143,24 +143,14 @@ impl StepLoss for Planted {
 }
 
 /// The teacher's job with a [`Planted`] gradient at step 1 (0-based).
-struct PlantedTask;
-
-impl Task for PlantedTask {
-    fn name(&self) -> &str {
-        "teacher"
-    }
-    fn step_loss(
-        &self,
-        config: &TrainingConfig,
-        data: &TaskData,
-        device: &Device,
-    ) -> Result<Arc<dyn StepLoss>, TrainError> {
-        Ok(Arc::new(Planted {
-            inner: TeacherTask::default().step_loss(config, data, device)?,
+fn planted_task() -> impl Task {
+    common::TeacherWith(|inner| -> Arc<dyn StepLoss> {
+        Arc::new(Planted {
+            inner,
             step: 1,
             factor: 2f64.powi(30),
-        }))
-    }
+        })
+    })
 }
 
 /// Checks the scale of every step line against the rule: halved after an overflow, doubled
@@ -205,7 +195,7 @@ fn an_f16_overflow_halves_the_scale_and_skips_the_step() {
         }),
         ..options(out.path(), Precision::F16)
     };
-    let summary = train(&config, &PlantedTask, &run).unwrap();
+    let summary = train(&config, &planted_task(), &run).unwrap();
     assert_eq!((summary.steps, summary.skipped_steps), (5, 1));
     let lines = step_lines(out.path());
     let skipped: Vec<f64> = lines
@@ -247,7 +237,12 @@ fn an_f16_overflow_halves_the_scale_and_skips_the_step() {
     let out = tempfile::tempdir().unwrap();
     let mut config = tiny_config(2);
     config.train.max_non_finite_steps = 1;
-    let summary = train(&config, &PlantedTask, &options(out.path(), Precision::Bf16)).unwrap();
+    let summary = train(
+        &config,
+        &planted_task(),
+        &options(out.path(), Precision::Bf16),
+    )
+    .unwrap();
     assert_eq!(summary.skipped_steps, 0);
     assert!(
         step_lines(out.path())

@@ -6,7 +6,6 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use burn::tensor::Device;
 use prism_core::BackendKind;
 use prism_data::PrismBatch;
 use prism_data::SynthOptions;
@@ -14,7 +13,7 @@ use prism_losses::LossTerms;
 use prism_model::Prism;
 use prism_synth::synth::synth_dataset;
 use prism_train::{
-    Checkpoint, RunOptions, StepLoss, Task, TaskData, TeacherTask, TrainError, TrainingConfig,
+    Checkpoint, RunOptions, StepLoss, Task, TeacherTask, TrainError, TrainingConfig,
     list_checkpoints, read_metrics, train,
 };
 
@@ -199,23 +198,14 @@ impl StepLoss for Poisoned {
     }
 }
 
-struct PoisonedTask(Vec<usize>);
-
-impl Task for PoisonedTask {
-    fn name(&self) -> &str {
-        "teacher"
-    }
-    fn step_loss(
-        &self,
-        config: &TrainingConfig,
-        data: &TaskData,
-        device: &Device,
-    ) -> Result<Arc<dyn StepLoss>, TrainError> {
-        Ok(Arc::new(Poisoned {
-            inner: TeacherTask::default().step_loss(config, data, device)?,
-            bad: self.0.clone(),
-        }))
-    }
+/// The teacher's job with a [`Poisoned`] objective at `bad` steps.
+fn poisoned_task(bad: Vec<usize>) -> impl Task {
+    common::TeacherWith(move |inner| -> Arc<dyn StepLoss> {
+        Arc::new(Poisoned {
+            inner,
+            bad: bad.clone(),
+        })
+    })
 }
 
 #[test]
@@ -228,7 +218,7 @@ fn non_finite_steps_are_skipped_counted_and_stop_the_run() {
         c.train.max_non_finite_steps = 3;
     });
     let out = tempfile::tempdir().unwrap();
-    let summary = train(&config, &PoisonedTask(vec![2, 3]), &options(out.path())).unwrap();
+    let summary = train(&config, &poisoned_task(vec![2, 3]), &options(out.path())).unwrap();
     assert_eq!((summary.steps, summary.skipped_steps), (5, 2));
     let at = |s: usize| weights(&out.path().join(format!("checkpoints/step-{s:08}")));
     assert_eq!(
@@ -252,7 +242,7 @@ fn non_finite_steps_are_skipped_counted_and_stop_the_run() {
 
     // Three in a row stop the run with a clear error.
     let out = tempfile::tempdir().unwrap();
-    let err = train(&config, &PoisonedTask(vec![1, 2, 3]), &options(out.path())).unwrap_err();
+    let err = train(&config, &poisoned_task(vec![1, 2, 3]), &options(out.path())).unwrap_err();
     assert!(
         matches!(
             err,

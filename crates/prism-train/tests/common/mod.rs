@@ -235,3 +235,28 @@ pub fn copy_dir(from: &Path, to: &Path) {
         }
     }
 }
+
+/// The teacher's job with its objective wrapped by `wrap` (a test's planted fault): a task
+/// named "teacher", so that checkpoints and resumption treat it as the teacher.
+pub struct TeacherWith<F>(pub F);
+
+impl<F> prism_train::Task for TeacherWith<F>
+where
+    F: Fn(std::sync::Arc<dyn prism_train::StepLoss>) -> std::sync::Arc<dyn prism_train::StepLoss>
+        + Send
+        + Sync,
+{
+    fn name(&self) -> &str {
+        "teacher"
+    }
+
+    fn step_loss(
+        &self,
+        config: &TrainingConfig,
+        data: &prism_train::TaskData,
+        device: &burn::tensor::Device,
+    ) -> Result<std::sync::Arc<dyn prism_train::StepLoss>, prism_train::TrainError> {
+        let teacher = prism_train::TeacherTask::default().step_loss(config, data, device)?;
+        Ok((self.0)(teacher))
+    }
+}
