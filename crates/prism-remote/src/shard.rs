@@ -153,14 +153,14 @@ type TrainingSets = Recent<(usize, u32, u64), Arc<SampleDataset>>;
 /// A cache of at most `capacity` values, the most recently used first: beyond it the least
 /// recently used value is dropped.
 #[derive(Debug)]
-pub struct Recent<K, V> {
+struct Recent<K, V> {
     entries: Vec<(K, V)>,
     capacity: usize,
 }
 
 impl<K: PartialEq, V: Clone> Recent<K, V> {
     /// An empty cache of at most `capacity` values.
-    pub fn new(capacity: usize) -> Self {
+    fn new(capacity: usize) -> Self {
         Self {
             entries: Vec::new(),
             capacity,
@@ -171,7 +171,7 @@ impl<K: PartialEq, V: Clone> Recent<K, V> {
     ///
     /// # Errors
     /// `make`'s error (nothing is cached then).
-    pub fn get_or_try_insert<E>(
+    fn get_or_try_insert<E>(
         &mut self,
         key: K,
         make: impl FnOnce() -> Result<V, E>,
@@ -183,16 +183,6 @@ impl<K: PartialEq, V: Clone> Recent<K, V> {
         self.entries.insert(0, (key, value.clone()));
         self.entries.truncate(self.capacity);
         Ok(value)
-    }
-
-    /// The values cached.
-    pub fn len(&self) -> usize {
-        self.entries.len()
-    }
-
-    /// Whether nothing is cached.
-    pub fn is_empty(&self) -> bool {
-        self.entries.is_empty()
     }
 }
 
@@ -354,7 +344,7 @@ mod tests {
         assert_eq!(get(&mut cache, 2), 20);
         assert_eq!(get(&mut cache, 1), 10); // cached: 1 is now the most recent
         assert_eq!(get(&mut cache, 3), 30); // drops 2, the least recent
-        assert_eq!(cache.len(), 2);
+        assert_eq!(cache.entries.len(), 2);
         assert_eq!(get(&mut cache, 1), 10);
         assert_eq!(get(&mut cache, 2), 20); // made again
         assert_eq!(made.get(), 4);
@@ -362,10 +352,10 @@ mod tests {
         for key in 100..200 {
             get(&mut cache, key);
         }
-        assert_eq!(cache.len(), 2);
+        assert_eq!(cache.entries.len(), 2);
         let failed = cache.get_or_try_insert(7, || Err::<u64, _>("cannot"));
         assert_eq!(failed, Err("cannot"));
-        assert_eq!(cache.len(), 2);
+        assert_eq!(cache.entries.len(), 2);
     }
 
     #[test]

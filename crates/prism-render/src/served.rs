@@ -243,12 +243,13 @@ fn with_gaussians(call: Call, inputs: SplatInputs<Remote>) -> Call {
     .fold(call, Call::input_tensor)
 }
 
-/// The five Gaussian tensors at inputs `0..5` of `op`, and the cameras at input 5.
+/// The five Gaussian tensors at inputs `0..5` of `op`, and the cameras at input 5, checked
+/// against the server's limits (a call past them is refused, see [`refuse_unless`]).
 fn gaussians_and_cameras<B: BackendIr>(
     handles: &mut HandleContainer<B::Handle>,
     op: &CustomOpIr,
 ) -> (SplatInputs<B>, SplatCameras) {
-    let inputs = SplatInputs {
+    let inputs: SplatInputs<B> = SplatInputs {
         means: input::<B>(handles, op, 0),
         log_scales: input::<B>(handles, op, 1),
         rotations: input::<B>(handles, op, 2),
@@ -256,6 +257,9 @@ fn gaussians_and_cameras<B: BackendIr>(
         features: input::<B>(handles, op, 4),
     };
     let cameras = decode_cameras(&input_values::<B>(handles, op, 5));
+    // The image the forward pass renders (the backward pass's tape too): features, alpha, depth.
+    let [b, _, c] = inputs.features.shape().dims();
+    refuse_unless(op, check_cameras(&cameras, b, c + 2));
     (inputs, SplatCameras(Arc::from(cameras)))
 }
 
@@ -325,8 +329,6 @@ fn splat_forward<B: BackendIr + SplatBackend>(
     _device: &B::Device,
 ) {
     let (inputs, cameras) = gaussians_and_cameras::<B>(handles, op);
-    let [b, _, c] = inputs.features.shape().dims();
-    refuse_unless(op, check_cameras(&cameras.0, b, c + 2));
     outputs::<B>(handles, op, [B::splat_rasterize(inputs, cameras)]);
 }
 
@@ -336,8 +338,6 @@ fn splat_backward<B: BackendIr + SplatTaped>(
     _device: &B::Device,
 ) {
     let (inputs, cameras) = gaussians_and_cameras::<B>(handles, op);
-    let [b, _, c] = inputs.features.shape().dims();
-    refuse_unless(op, check_cameras(&cameras.0, b, c + 2));
     let grad = input::<B>(handles, op, 6);
     let (_, tape) = B::forward_taped(inputs, &cameras);
     let g = B::backward_taped(tape, &cameras, grad);
