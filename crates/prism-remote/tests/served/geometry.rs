@@ -3,10 +3,8 @@
 //! values as on this machine's flex, and the splatting's and the sampling's gradients reach
 //! the served inputs with the same values.
 
-mod common;
-
+use crate::common::served_device;
 use burn::tensor::{Device, Tensor, TensorData};
-use common::served_device;
 use glam::Vec3;
 use prism_core::{Camera, Intrinsics};
 use prism_render::mesh::rasterize_maps;

@@ -10,13 +10,11 @@
 //! "Training on several machines"). When a Burn release lifts the limit, this test fails:
 //! then the trainer should switch to `all_reduce`.
 
-mod common;
-
 use std::panic::{AssertUnwindSafe, catch_unwind};
 
+use crate::common::served_device;
 use burn::tensor::Tensor;
 use burn::tensor::distributed::{ReduceOperation, all_reduce};
-use common::served_device;
 
 #[test]
 fn burn_cannot_all_reduce_across_two_servers() {
