@@ -56,6 +56,8 @@ enum Command {
     Quickstart(commands::quickstart::QuickstartArgs),
     /// The paper's ablation table: every row trained at one budget, scored on the same views.
     Ablate(commands::ablate::AblateArgs),
+    /// A live viewer in the browser: move the camera around a person, watch the model answer.
+    View(commands::view::ViewArgs),
 }
 
 fn main() {
@@ -86,6 +88,7 @@ fn main() {
         Command::Quickstart(args) => args.run(),
         Command::Serve(args) => args.run(),
         Command::Ablate(args) => args.run(),
+        Command::View(args) => args.run(),
     };
     if let Err(err) = result {
         eprintln!("error: {err:#}");

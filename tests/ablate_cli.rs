@@ -121,10 +121,11 @@ fn ablate_trains_scores_and_keeps_finished_rows() {
     );
     assert!(again.rows[2].gs.is_some(), "no_points keeps its 3DGS head");
 
-    // Another budget on the same folder is refused, naming the finished row's file.
+    // Another budget on the same folder is refused, naming the finished row's file and what
+    // differs: the plan.
     let err = failure(ablate(&cache, &config_path, &out, "teacher", "6"));
     assert!(
-        err.contains("teacher/row.json") && err.contains("trained for 4 steps"),
+        err.contains("teacher/row.json") && err.contains("another plan"),
         "{err}"
     );
     let err = failure(ablate(&cache, &config_path, &out, "teacher,nope", "4"));

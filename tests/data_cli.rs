@@ -57,6 +57,20 @@ fn synth_then_check_then_rerun_then_corrupt() {
     let h = subject["height"].as_f64().unwrap();
     assert!((h - 1.80).abs() <= 0.05 + 1e-6, "height {h}");
 
+    // Every view stores its depth map (16-bit millimetres), 0 exactly where the view's centre
+    // rays miss the person; `data check` above compared the source's with the point map.
+    for view in [0, 42, 104] {
+        let depth = image::open(data.join(format!("subject_0000/depth/{view:03}.png")))
+            .unwrap()
+            .into_luma16();
+        assert_eq!(depth.dimensions(), (32, 32));
+        let metres: Vec<f32> = depth.pixels().map(|p| f32::from(p.0[0]) / 1000.0).collect();
+        let on: Vec<f32> = metres.iter().copied().filter(|&d| d > 0.0).collect();
+        // The protocol's cameras are 2 m from the person, who is a few tens of cm deep.
+        assert!(on.len() > 50 && on.len() < metres.len(), "view {view}");
+        assert!(on.iter().all(|&d| (1.4..2.6).contains(&d)), "view {view}");
+    }
+
     // A rerun with the same settings skips every finished subject.
     let out = synth(&data, &["--test-fraction", "0.34"]);
     assert!(
@@ -72,15 +86,24 @@ fn synth_then_check_then_rerun_then_corrupt() {
         text(&out)
     );
 
-    // A broken file makes check fail, naming it.
+    // A broken file makes check fail, naming it; so does a source depth map that disagrees
+    // with the point map.
     std::fs::write(data.join("subject_0001/rgb/042.png"), b"broken").unwrap();
+    let source_depth = data.join("subject_0002/depth/000.png");
+    let mut depth = image::open(&source_depth).unwrap().into_luma16();
+    depth
+        .pixels_mut()
+        .for_each(|p| p.0[0] = p.0[0].saturating_add(p.0[0].min(5)));
+    depth.save(&source_depth).unwrap();
     let out = run(&["data", "check", data.to_str().unwrap()]);
     assert_eq!(out.status.code(), Some(1));
-    assert!(
-        text(&out).contains("subject_0001/rgb/042.png"),
-        "{}",
-        text(&out)
-    );
+    for words in [
+        "subject_0001/rgb/042.png",
+        "subject_0002/points/000.npy",
+        "off the source view's depth map",
+    ] {
+        assert!(text(&out).contains(words), "{words}: {}", text(&out));
+    }
 }
 
 #[test]

@@ -165,8 +165,9 @@ fn evaluate_writes_every_key_the_report_and_the_grids() {
         assert!(gs[key].as_f64().unwrap().is_finite(), "{gs}");
     }
     assert_ne!(gs["psnr"], v["psnr"]);
-    // Every method is also scored in the disoccluded region; the copy of the source scores
-    // worse there than overall (those are the pixels it cannot explain).
+    // Every method is also scored in the disoccluded region, found by the depth test on the
+    // dataset's depth maps; the copy of the source scores worse there than overall (those are
+    // the pixels it cannot explain).
     for method in [&v, copy, gs] {
         for key in ["psnr_disoccluded", "ssim_disoccluded", "lpips_disoccluded"] {
             assert!(method[key].as_f64().unwrap().is_finite(), "{key}: {method}");
@@ -200,13 +201,42 @@ fn evaluate_writes_every_key_the_report_and_the_grids() {
         warp["psnr_disoccluded"].as_f64().unwrap().is_finite(),
         "{warp}"
     );
+    // The warp is a baseline swept over its Gaussians' size: the reported one is the best.
+    let sweep = v["true_depth_warp_sweep"].as_array().unwrap();
+    let footprints: Vec<f64> = sweep
+        .iter()
+        .map(|f| f["footprint"].as_f64().unwrap())
+        .collect();
+    assert_eq!(footprints.len(), 4);
+    let best = sweep
+        .iter()
+        .max_by(|a, b| {
+            a["psnr"]
+                .as_f64()
+                .unwrap()
+                .total_cmp(&b["psnr"].as_f64().unwrap())
+        })
+        .unwrap();
+    assert_eq!(best["psnr"], warp["psnr"], "{sweep:?}");
+    assert_eq!(best["footprint"], v["true_depth_warp_footprint"]);
+    assert!(
+        sweep.iter().any(|f| f["psnr"] != best["psnr"]),
+        "the footprint changes the warp: {sweep:?}"
+    );
     assert_eq!(gs["subjects"][name]["views"], 100);
     for axis in ["yaw", "pitch"] {
         assert_eq!(bins(gs, axis), bins(&v, axis), "{axis}");
     }
 
+    assert_eq!(v["disoccluded_by"], "depth_test");
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(report.contains("| PSNR (dB) | SSIM | LPIPS | FPS (1 pair) |"));
+    for words in [
+        "tested against the source's depth map",
+        "the most that a better guess of what the source does not see can add",
+    ] {
+        assert!(report.contains(words), "{words}: {report}");
+    }
     for row in [
         "| model (NVS decoder I_t) |",
         "| model's 3DGS head (I_gs) |",
@@ -232,6 +262,40 @@ fn evaluate_writes_every_key_the_report_and_the_grids() {
     // 4 rows of source | prediction | ground truth | error map, 32 px each.
     let grid = image::open(out.join("grids").join(format!("{name}.png"))).unwrap();
     assert_eq!((grid.width(), grid.height()), (4 * 32, 4 * 32));
+}
+
+#[test]
+fn a_dataset_without_depth_maps_gets_the_estimated_region_and_the_report_says_so() {
+    let (cache, run_dir) = trained();
+    let dir = scratch("no-depth");
+    let data = dir.join("data");
+    common::copy_dir(&dataset_dir(cache), &data);
+    // A dataset written before views stored their depth.
+    for subject in std::fs::read_dir(&data).unwrap() {
+        let depth = subject.unwrap().path().join("depth");
+        if depth.is_dir() {
+            std::fs::remove_dir_all(depth).unwrap();
+        }
+    }
+    let out = dir.join("eval");
+    success(prism(&[
+        "evaluate",
+        "--checkpoint",
+        s(run_dir),
+        "--data",
+        s(&data),
+        "--views",
+        "4",
+        "--out",
+        s(&out),
+    ]));
+    let v = read_json(&out.join("evaluation.json"));
+    assert_eq!(v["disoccluded_by"], "estimate");
+    assert!(v["psnr_disoccluded"].as_f64().unwrap().is_finite(), "{v}");
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    for words in ["this dataset stores no depth maps", "not a bound"] {
+        assert!(report.contains(words), "{words}: {report}");
+    }
 }
 
 #[test]

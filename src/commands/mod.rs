@@ -16,3 +16,4 @@ pub mod quickstart;
 pub mod serve;
 pub mod splat;
 pub mod train;
+pub mod view;

@@ -50,10 +50,15 @@ pub struct CheckReport {
 /// source camera and its pixel centre.
 const REPROJECTION_TOLERANCE_PX: f32 = 0.01;
 
+/// Largest difference, in metres, between a source point's depth and the source view's
+/// depth map at its pixel (the map stores whole millimetres).
+const DEPTH_TOLERANCE_M: f32 = 2e-3;
+
 /// Validates the dataset at `root`: `dataset.json`, and per subject the cameras (count, sizes,
 /// rigid `c2w`, positive focal lengths, subject in front of the camera), every RGB and mask
-/// image (present, decodable, right size), the point map (shape, finite, zero off the mask,
-/// reprojecting onto its pixel centres through the source camera) and the JSON records.
+/// image and, when the subject stores depth, every depth map (present, decodable, right size),
+/// the point map (shape, finite, zero off the mask, reprojecting onto its pixel centres through
+/// the source camera, at the source depth map's depths) and the JSON records.
 pub fn check_dataset(root: &Path) -> CheckReport {
     let reader = match DatasetReader::open(root) {
         Ok(r) => r,
@@ -128,11 +133,20 @@ fn check_subject(reader: &DatasetReader, name: &str) -> Vec<Problem> {
         problems.push(e.into());
     }
     let mut source_mask = None;
+    let mut source_depth = None;
+    let has_depth = reader.has_depth(name);
     for index in 0..reader.meta().views {
         match reader.view(name, index) {
             Ok((_, mask)) if index == SOURCE_VIEW => source_mask = Some(mask),
             Ok(_) => {}
             Err(e) => problems.push(e.into()),
+        }
+        if has_depth {
+            match reader.depth(name, index) {
+                Ok(depth) if index == SOURCE_VIEW => source_depth = depth,
+                Ok(_) => {}
+                Err(e) => problems.push(e.into()),
+            }
         }
     }
     let points_path = dir.join(files::POINTS);
@@ -144,6 +158,7 @@ fn check_subject(reader: &DatasetReader, name: &str) -> Vec<Problem> {
                 let mut off_mask = 0;
                 let mut bad_reprojection = 0;
                 let mut non_finite = 0;
+                let mut depth_mismatch = 0;
                 let mut valid = 0;
                 let mut centroid = Vec3::ZERO;
                 for (i, p) in map.points.iter().enumerate() {
@@ -162,6 +177,11 @@ fn check_subject(reader: &DatasetReader, name: &str) -> Vec<Problem> {
                         if z <= 0.0 || (u - x).hypot(v - y) > REPROJECTION_TOLERANCE_PX {
                             bad_reprojection += 1;
                         }
+                        if let Some(depth) = &source_depth
+                            && (depth.as_raw()[i] - z).abs() > DEPTH_TOLERANCE_M
+                        {
+                            depth_mismatch += 1;
+                        }
                         valid += 1;
                         centroid += p;
                     }
@@ -179,6 +199,10 @@ fn check_subject(reader: &DatasetReader, name: &str) -> Vec<Problem> {
                 report(
                     bad_reprojection,
                     "do not reproject onto their pixel centres in the source camera",
+                );
+                report(
+                    depth_mismatch,
+                    "are off the source view's depth map by more than 2 mm",
                 );
                 if valid == 0 {
                     problems.push(Problem {

@@ -25,6 +25,13 @@ pub struct PointMap {
 /// A float mask in [0, 1].
 pub type Mask = ImageBuffer<Luma<f32>, Vec<f32>>;
 
+/// A depth map: the camera-space depth (z, metres) of the surface seen through each pixel
+/// centre, 0 where the pixel's centre ray meets no surface.
+pub type DepthMap = ImageBuffer<Luma<f32>, Vec<f32>>;
+
+/// Depth PNGs store millimetres: 16 bits reach 65.535 m in steps of 1 mm.
+pub const DEPTH_PNG_UNITS_PER_METRE: f32 = 1000.0;
+
 /// Reads a JSON file into `T`.
 pub fn read_json<T: DeserializeOwned>(path: &Path) -> Result<T> {
     let text = fs::read_to_string(path).map_err(|e| DataError::io(path, e))?;
@@ -57,6 +64,45 @@ pub fn read_rgb(path: &Path) -> Result<Rgb32FImage> {
 /// Reads a grey image as a float mask in [0, 1].
 pub fn read_mask(path: &Path) -> Result<Mask> {
     Ok(open_image(path)?.to_luma32f())
+}
+
+/// Writes a depth map as a 16-bit grey PNG in millimetres (0: no surface), atomically.
+///
+/// # Errors
+/// A depth that is negative, not finite or past 65.535 m (named with the file), or I/O.
+pub fn write_depth_png(path: &Path, depth: &DepthMap) -> Result<()> {
+    let max = f32::from(u16::MAX) / DEPTH_PNG_UNITS_PER_METRE;
+    if let Some(bad) = depth
+        .pixels()
+        .map(|p| p.0[0])
+        .find(|d| !d.is_finite() || *d < 0.0 || *d > max)
+    {
+        return Err(DataError::invalid(
+            path,
+            format!("depth {bad} m cannot be stored (0 to {max} m)"),
+        ));
+    }
+    let mm: ImageBuffer<Luma<u16>, Vec<u16>> =
+        ImageBuffer::from_fn(depth.width(), depth.height(), |x, y| {
+            Luma([(depth.get_pixel(x, y).0[0] * DEPTH_PNG_UNITS_PER_METRE).round() as u16])
+        });
+    images::save_png(path, &mm).map_err(|e| DataError::io(path, e))
+}
+
+/// Reads a 16-bit depth PNG written by [`write_depth_png`] as metres.
+///
+/// # Errors
+/// I/O, an undecodable file, or an image that is not 16-bit grey (named with the file).
+pub fn read_depth(path: &Path) -> Result<DepthMap> {
+    let image::DynamicImage::ImageLuma16(mm) = open_image(path)? else {
+        return Err(DataError::invalid(
+            path,
+            "a depth map must be a 16-bit grey PNG (millimetres)",
+        ));
+    };
+    Ok(ImageBuffer::from_fn(mm.width(), mm.height(), |x, y| {
+        Luma([f32::from(mm.get_pixel(x, y).0[0]) / DEPTH_PNG_UNITS_PER_METRE])
+    }))
 }
 
 /// Decodes an image file; errors name the file (I/O apart from decoding).
@@ -136,6 +182,37 @@ mod tests {
         fs::write(&path, b"garbage").unwrap();
         let err = read_points(&path).unwrap_err().to_string();
         assert!(err.contains("p.npy") && err.contains("not a .npy"), "{err}");
+    }
+
+    #[test]
+    fn depth_round_trips_to_the_millimetre_and_bad_depths_are_refused() {
+        let d = tempfile::tempdir().unwrap();
+        let depth = DepthMap::from_fn(5, 3, |x, y| Luma([x as f32 * 0.7311 + y as f32 * 1.25]));
+        let path = d.path().join("depth.png");
+        write_depth_png(&path, &depth).unwrap();
+        let back = read_depth(&path).unwrap();
+        assert_eq!(back.dimensions(), (5, 3));
+        for (a, b) in depth.pixels().zip(back.pixels()) {
+            assert!((a.0[0] - b.0[0]).abs() <= 0.5e-3 + 1e-6, "{a:?} {b:?}");
+        }
+        assert_eq!(back.get_pixel(0, 0).0[0], 0.0, "no surface stays 0");
+        for bad in [-0.1, f32::NAN, 70.0] {
+            let mut depth = depth.clone();
+            depth.put_pixel(1, 1, Luma([bad]));
+            let err = write_depth_png(&d.path().join("bad.png"), &depth)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                err.contains("bad.png") && err.contains("cannot be stored"),
+                "{err}"
+            );
+        }
+        assert!(!d.path().join("bad.png").exists());
+        // An 8-bit image is not a depth map.
+        let grey = d.path().join("grey.png");
+        write_mask_png(&grey, &Mask::from_pixel(2, 2, Luma([0.5]))).unwrap();
+        let err = read_depth(&grey).unwrap_err().to_string();
+        assert!(err.contains("grey.png") && err.contains("16-bit"), "{err}");
     }
 
     #[test]

@@ -16,9 +16,11 @@ pub mod writer;
 
 pub use batch::{BatchPixels, PIXEL_PLANES, PairInfo, PrismBatch, PrismBatcher};
 pub use check::{CheckReport, Problem, check_dataset};
-pub use disocclusion::{FOREGROUND, disoccluded_region};
+pub use disocclusion::{
+    DepthView, FOREGROUND, RegionMethod, disoccluded_by_depth, disoccluded_region,
+};
 pub use error::DataError;
-pub use io::{Mask, PointMap};
+pub use io::{DepthMap, Mask, PointMap};
 pub use reader::DatasetReader;
 pub use samples::{Sample, SampleDataset, SampleMeta, TargetSelection, View, ViewMeta};
 pub use schema::{CameraRecord, DatasetMeta, Split, SplitKind, SubjectRecord};

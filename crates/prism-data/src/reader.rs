@@ -5,7 +5,9 @@ use std::path::{Path, PathBuf};
 use image::Rgb32FImage;
 
 use super::error::{DataError, Result};
-use super::io::{Mask, PointMap, read_json, read_mask, read_points, read_rgb};
+use super::io::{
+    DepthMap, Mask, PointMap, read_depth, read_json, read_mask, read_points, read_rgb,
+};
 use super::schema::{CameraRecord, DatasetMeta, FORMAT_NAME, FORMAT_VERSION, SubjectRecord, files};
 
 /// An opened dataset folder.
@@ -128,6 +130,29 @@ impl DatasetReader {
         let mask = read_mask(&mask_path)?;
         self.check_size(&mask_path, mask.width(), mask.height())?;
         Ok((rgb, mask))
+    }
+
+    /// Whether subject `name` stores depth maps (datasets written before depth was stored do
+    /// not).
+    pub fn has_depth(&self, name: &str) -> bool {
+        self.subject_dir(name).join(files::DEPTH).is_dir()
+    }
+
+    /// View `index`'s depth map of subject `name`, checked against the dataset's image size;
+    /// `None` when the subject stores no depth (see [`DatasetReader::has_depth`]).
+    ///
+    /// # Errors
+    /// A subject with depth maps but this one missing or unreadable (named with the file).
+    pub fn depth(&self, name: &str, index: usize) -> Result<Option<DepthMap>> {
+        if !self.has_depth(name) {
+            return Ok(None);
+        }
+        let path = self
+            .subject_dir(name)
+            .join(files::view_png(files::DEPTH, index));
+        let depth = read_depth(&path)?;
+        self.check_size(&path, depth.width(), depth.height())?;
+        Ok(Some(depth))
     }
 
     /// The source view's point map of subject `name`.

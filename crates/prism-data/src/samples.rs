@@ -8,8 +8,9 @@ use rand::SeedableRng;
 use rand::seq::index::sample;
 use rand_chacha::ChaCha8Rng;
 
+use super::disocclusion::{DepthView, RegionMethod, disoccluded_by_depth, disoccluded_region};
 use super::error::{DataError, Result};
-use super::io::{Mask, PointMap};
+use super::io::{DepthMap, Mask, PointMap};
 use super::reader::DatasetReader;
 use super::schema::{CameraRecord, SplitKind};
 use prism_body::BodyParams;
@@ -50,6 +51,9 @@ pub struct View {
     pub rgb: Rgb32FImage,
     /// Foreground alpha in [0, 1].
     pub mask: Mask,
+    /// Depth of the surface at each pixel centre, when the dataset stores it and the samples
+    /// were asked for it ([`SampleDataset::with_depth`]).
+    pub depth: Option<DepthMap>,
 }
 
 /// A training or evaluation sample: the source view of one subject and some of its targets.
@@ -108,6 +112,37 @@ impl View {
 }
 
 impl Sample {
+    /// The disoccluded region of target view `target` (1 inside, 0 outside) and how it was
+    /// found: by the depth test when both the source and the target carry depth maps (see
+    /// [`SampleDataset::with_depth`]), else estimated from the source's point map.
+    ///
+    /// # Panics
+    /// If `target` is out of range.
+    pub fn disoccluded_region(&self, target: usize) -> (Mask, RegionMethod) {
+        let t = &self.targets[target];
+        match (&self.source.depth, &t.depth) {
+            (Some(source_depth), Some(target_depth)) => (
+                disoccluded_by_depth(
+                    DepthView {
+                        camera: &self.source.camera,
+                        mask: &self.source.mask,
+                        depth: source_depth,
+                    },
+                    DepthView {
+                        camera: &t.camera,
+                        mask: &t.mask,
+                        depth: target_depth,
+                    },
+                ),
+                RegionMethod::DepthTest,
+            ),
+            _ => (
+                disoccluded_region(&self.points, &self.source.mask, &t.camera, &t.mask),
+                RegionMethod::Estimate,
+            ),
+        }
+    }
+
     /// The sample without its pixels.
     pub fn meta(&self) -> SampleMeta {
         SampleMeta {
@@ -128,6 +163,7 @@ pub struct SampleDataset {
     selection: TargetSelection,
     size: (u32, u32),
     seed: u64,
+    depth: bool,
 }
 
 impl SampleDataset {
@@ -187,7 +223,17 @@ impl SampleDataset {
             selection,
             size,
             seed,
+            depth: false,
         })
+    }
+
+    /// The same samples with each view's depth map loaded too (evaluation's disoccluded
+    /// regions need it; training does not read it).
+    pub fn with_depth(self) -> Self {
+        Self {
+            depth: true,
+            ..self
+        }
     }
 
     /// A run's training samples: the training subjects at `resolution` x `resolution`,
@@ -310,6 +356,13 @@ impl SampleDataset {
                 resize(&mask, w, h, FilterType::Triangle),
             )
         };
+        let depth = if self.depth {
+            self.reader
+                .depth(&self.subjects[subject_index], index)?
+                .map(|d| resize_nearest(&d, (w, h)))
+        } else {
+            None
+        };
         Ok(View {
             index,
             yaw_deg: record.yaw_deg,
@@ -317,20 +370,37 @@ impl SampleDataset {
             camera: record.camera().rescaled(w, h),
             rgb,
             mask,
+            depth,
         })
     }
+}
+
+/// The source pixel, along an axis of `from` pixels, of pixel `i` of `to`: nearest neighbour at
+/// the new pixel centres.
+fn nearest(i: u32, to: u32, from: u32) -> u32 {
+    (((i as f32 + 0.5) * from as f32 / to as f32) as u32).min(from - 1)
+}
+
+/// Resamples a depth map to `size` by nearest neighbour (as [`resize_points`]: averaging
+/// depths across an edge would invent surface between the two sides).
+fn resize_nearest(map: &DepthMap, (w, h): (u32, u32)) -> DepthMap {
+    if map.dimensions() == (w, h) {
+        return map.clone();
+    }
+    let (from_w, from_h) = map.dimensions();
+    DepthMap::from_fn(w, h, |x, y| {
+        *map.get_pixel(nearest(x, w, from_w), nearest(y, h, from_h))
+    })
 }
 
 /// Resamples a point map to `size` by nearest neighbour at the new pixel centres (points are
 /// surface positions: averaging them would invent points between surfaces).
 pub fn resize_points(map: &PointMap, (w, h): (u32, u32)) -> PointMap {
-    let sx = map.width as f32 / w as f32;
-    let sy = map.height as f32 / h as f32;
     let mut points = Vec::with_capacity((w * h) as usize);
     for y in 0..h {
-        let src_y = (((y as f32 + 0.5) * sy) as u32).min(map.height - 1);
+        let src_y = nearest(y, h, map.height);
         for x in 0..w {
-            let src_x = (((x as f32 + 0.5) * sx) as u32).min(map.width - 1);
+            let src_x = nearest(x, w, map.width);
             points.push(map.points[(src_y * map.width + src_x) as usize]);
         }
     }

@@ -112,8 +112,11 @@ pub mod files {
     pub const MASK: &str = "mask";
     /// Per subject: the source view's point map.
     pub const POINTS: &str = "points/000.npy";
+    /// Per subject: folder of 16-bit depth maps in millimetres. Datasets written before
+    /// depth was stored have none; their disoccluded regions are estimated.
+    pub const DEPTH: &str = "depth";
 
-    /// `rgb/NNN.png` or `mask/NNN.png` of view `index`.
+    /// `rgb/NNN.png`, `mask/NNN.png` or `depth/NNN.png` of view `index`.
     pub fn view_png(folder: &str, index: usize) -> String {
         format!("{folder}/{index:03}.png")
     }

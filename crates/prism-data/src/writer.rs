@@ -14,7 +14,8 @@ use serde::Serialize;
 
 use super::error::{DataError, Result};
 use super::io::{
-    Mask, PointMap, read_json, write_json, write_mask_png, write_points, write_rgb_png,
+    DepthMap, Mask, PointMap, read_json, write_depth_png, write_json, write_mask_png, write_points,
+    write_rgb_png,
 };
 use super::schema::{CameraRecord, DatasetMeta, Split, SubjectRecord, files};
 
@@ -132,7 +133,7 @@ impl DatasetWriter {
         if staging.exists() {
             fs::remove_dir_all(&staging).map_err(|e| DataError::io(&staging, e))?;
         }
-        for sub in [files::RGB, files::MASK, "points"] {
+        for sub in [files::RGB, files::MASK, files::DEPTH, "points"] {
             let dir = staging.join(sub);
             fs::create_dir_all(&dir).map_err(|e| DataError::io(&dir, e))?;
         }
@@ -155,12 +156,23 @@ pub struct SubjectWriter<'a> {
 }
 
 impl SubjectWriter<'_> {
-    /// Writes view `index`'s RGB image and alpha mask. Safe to call from several threads.
-    pub fn write_view(&self, index: usize, rgb: &Rgb32FImage, mask: &Mask) -> Result<()> {
+    /// Writes view `index`'s RGB image, alpha mask and depth map. Safe to call from several
+    /// threads.
+    pub fn write_view(
+        &self,
+        index: usize,
+        rgb: &Rgb32FImage,
+        mask: &Mask,
+        depth: &DepthMap,
+    ) -> Result<()> {
         write_rgb_png(&self.staging.join(files::view_png(files::RGB, index)), rgb)?;
         write_mask_png(
             &self.staging.join(files::view_png(files::MASK, index)),
             mask,
+        )?;
+        write_depth_png(
+            &self.staging.join(files::view_png(files::DEPTH, index)),
+            depth,
         )
     }
 

@@ -9,8 +9,8 @@ use image::{Luma, Rgb, Rgb32FImage};
 use prism_core::CameraRecord;
 use prism_core::{BackendKind, Camera, Intrinsics, ViewingProtocol};
 use prism_data::{
-    DatasetMeta, DatasetReader, DatasetWriter, Mask, PointMap, PrismBatcher, SampleDataset, Split,
-    SplitKind, SubjectRecord, TargetSelection, check_dataset,
+    DatasetMeta, DatasetReader, DatasetWriter, DepthMap, Mask, PointMap, PrismBatcher,
+    SampleDataset, Split, SplitKind, SubjectRecord, TargetSelection, check_dataset,
 };
 
 const RES: u32 = 16;
@@ -60,7 +60,10 @@ fn write_sphere_dataset(root: &Path, subjects: &[&str]) {
             let mask = Mask::from_fn(RES, RES, |x, y| {
                 Luma([hit(&cam, x, y).map_or(0.0, |_| 1.0)])
             });
-            w.write_view(view.index, &rgb, &mask).unwrap();
+            let depth = DepthMap::from_fn(RES, RES, |x, y| {
+                Luma([hit(&cam, x, y).map_or(0.0, |p| cam.project(p).2)])
+            });
+            w.write_view(view.index, &rgb, &mask, &depth).unwrap();
             if view.index == 0 {
                 points = Some(PointMap {
                     width: RES,

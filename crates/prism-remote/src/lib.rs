@@ -16,6 +16,6 @@ pub mod spec;
 pub use connect::{ConnectError, Connected, accepts_connections, connect};
 pub use credential::{CredentialError, MIN_TOKEN_BYTES, TOKEN_ENV, read_token};
 pub use handshake::{Fingerprint, config_digest};
-pub use serve::{ServeError, ServeOptions, TransportKind, serve};
+pub use serve::{ServeError, ServeOptions, TransportKind, serve, stop_signal};
 pub use shard::{ShardRequest, dataset_digest};
 pub use spec::{DeviceList, DeviceSpec, SpecError};

@@ -193,9 +193,14 @@ fn entries(entry: &str, count: usize) -> String {
         .join(",")
 }
 
-/// Resolves at the first SIGINT or SIGTERM; the handlers are installed when this returns.
+/// Resolves at the first SIGINT or SIGTERM; the handlers are installed when this returns (so a
+/// server that announces its address after calling it never misses an early signal). Shared by
+/// `prism serve` and `prism view`.
+///
+/// # Errors
+/// When a handler cannot be installed.
 #[cfg(unix)]
-fn stop_signal() -> std::io::Result<impl Future<Output = ()>> {
+pub fn stop_signal() -> std::io::Result<impl Future<Output = ()>> {
     use tokio::signal::unix::{SignalKind, signal};
     let mut interrupt = signal(SignalKind::interrupt())?;
     let mut terminate = signal(SignalKind::terminate())?;
@@ -208,8 +213,11 @@ fn stop_signal() -> std::io::Result<impl Future<Output = ()>> {
 }
 
 /// Resolves at the first Ctrl+C.
+///
+/// # Errors
+/// Never; the signature matches the Unix one.
 #[cfg(not(unix))]
-fn stop_signal() -> std::io::Result<impl Future<Output = ()>> {
+pub fn stop_signal() -> std::io::Result<impl Future<Output = ()>> {
     Ok(async {
         let _ = tokio::signal::ctrl_c().await;
     })

@@ -36,12 +36,16 @@ pub fn cache_dir() -> PathBuf {
         .join("prism")
 }
 
-/// The cache folder of the synthetic dataset `data` describes: a name made from every setting,
-/// so that different settings never share a folder.
+/// The layout of the cached synthetic datasets, in their folder names: a new layout is
+/// synthesised afresh instead of reusing an older folder (2: every view stores its depth).
+const CACHE_LAYOUT: u32 = 2;
+
+/// The cache folder of the synthetic dataset `data` describes: a name made from every setting
+/// and the cache layout, so that different settings never share a folder.
 pub fn synthetic_dataset_dir(data: &SynthOptions) -> PathBuf {
     let [r, g, b] = data.background;
     cache_dir().join("datasets").join(format!(
-        "synth-n{}-r{}-seed{}-test{}-ss{}-bg{r}-{g}-{b}",
+        "synth-v{CACHE_LAYOUT}-n{}-r{}-seed{}-test{}-ss{}-bg{r}-{g}-{b}",
         data.subjects, data.resolution, data.seed, data.test_fraction, data.supersample
     ))
 }

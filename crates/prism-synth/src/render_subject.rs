@@ -1,5 +1,5 @@
-//! Rendering one subject of the viewing protocol into a dataset: every view's RGB and mask,
-//! the source point map, the cameras and the records. Shared by `data synth` (procedural
+//! Rendering one subject of the viewing protocol into a dataset: every view's RGB, mask and
+//! depth, the source point map, the cameras and the records. Shared by `data synth` (procedural
 //! people) and `data render` (scans), so both produce the same format from the same renderer.
 
 use image::{Luma, Rgb, Rgb32FImage};
@@ -11,7 +11,7 @@ use crate::raster::{RenderOptions, RenderOutput, render};
 use prism_core::camera::Intrinsics;
 use prism_core::protocol::{SOURCE_VIEW, ViewAngles, ViewingProtocol};
 use prism_data::error::{DataError, Result};
-use prism_data::io::{Mask, PointMap};
+use prism_data::io::{DepthMap, Mask, PointMap};
 use prism_data::schema::{CameraRecord, SubjectRecord};
 use prism_data::writer::DatasetWriter;
 
@@ -102,8 +102,8 @@ impl SubjectRender<'_> {
                 let out = render(mesh, &camera, self.options).map_err(|e| {
                     DataError::invalid(&dir, format!("cannot render view {}: {e}", view.index))
                 })?;
-                let (rgb, mask) = images(&out);
-                subject.write_view(view.index, &rgb, &mask)?;
+                let (rgb, mask, depth) = images(&out);
+                subject.write_view(view.index, &rgb, &mask, &depth)?;
                 on_view();
                 let points = (view.index == SOURCE_VIEW).then_some(PointMap {
                     width: out.width as u32,
@@ -126,12 +126,12 @@ impl SubjectRender<'_> {
     }
 }
 
-/// The float RGB image and mask of a render.
-fn images(out: &RenderOutput) -> (Rgb32FImage, Mask) {
+/// The float RGB image, mask and depth map of a render.
+fn images(out: &RenderOutput) -> (Rgb32FImage, Mask, DepthMap) {
     let (w, h) = (out.width as u32, out.height as u32);
-    let rgb = Rgb32FImage::from_fn(w, h, |x, y| Rgb(out.rgb[out.index(x as usize, y as usize)]));
-    let mask = Mask::from_fn(w, h, |x, y| {
-        Luma([out.alpha[out.index(x as usize, y as usize)]])
-    });
-    (rgb, mask)
+    let at = |x: u32, y: u32| out.index(x as usize, y as usize);
+    let rgb = Rgb32FImage::from_fn(w, h, |x, y| Rgb(out.rgb[at(x, y)]));
+    let mask = Mask::from_fn(w, h, |x, y| Luma([out.alpha[at(x, y)]]));
+    let depth = DepthMap::from_fn(w, h, |x, y| Luma([out.depth[at(x, y)]]));
+    (rgb, mask, depth)
 }

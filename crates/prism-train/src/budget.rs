@@ -1,8 +1,9 @@
 //! `prism bench budget`: the quick start at several multiples of its step counts (a benchmark
 //! that takes hours at 16x, not a test), to see whether the NVS decoder's gain over its own
 //! 3DGS render `I_gs` grows with the budget. Each multiple is a quick start in its own folder
-//! (`1x/`, `4x/`, ...) with a [`POINT_FILE`] once done (kept on the next run; an unfinished one
-//! continues from its runs' last checkpoints, as [`quickstart`] does); the table
+//! (`1x/`, `4x/`, ...) with a [`POINT_FILE`] once done (kept on the next run when its
+//! [`Provenance`] is the point's, refused when not; an unfinished one continues from its runs'
+//! last checkpoints, as [`quickstart`] does); the table
 //! ([`BUDGET_TABLE`]) and a plot of PSNR against the teacher's steps ([`BUDGET_PLOT`]: NVS and
 //! `I_gs` of teacher and student, and copy-source, overall and in the disoccluded region) are
 //! rewritten after each multiple.
@@ -21,6 +22,7 @@ use crate::ablate::{AblationRow, RowResult, mean_step_seconds, read_finished};
 use crate::error::{Result, TrainError};
 use crate::images::save_png;
 use crate::plot::{FONT, draw_legend_box, register_font};
+use crate::provenance::Provenance;
 use crate::quickstart::{PipelineOptions, QuickstartModel, QuickstartPlan, StudentJob, quickstart};
 
 /// A finished multiple's result, in its folder.
@@ -41,6 +43,9 @@ pub struct BudgetPoint {
     pub teacher: RowResult,
     /// The student.
     pub student: RowResult,
+    /// What the point was made from; a finished point is kept only for the same.
+    #[serde(default)]
+    pub provenance: Provenance,
 }
 
 /// Runs the quick start `plan` at each of `multiples` of its step counts into
@@ -60,14 +65,23 @@ pub fn budget_curve(
     for &multiple in multiples {
         let dir = options.out.join(format!("{multiple}x"));
         let file = dir.join(POINT_FILE);
+        let scaled = QuickstartPlan {
+            teacher_steps: plan.teacher_steps * multiple,
+            student_steps: plan.student_steps * multiple,
+            ..plan.clone()
+        };
+        let point_plan = serde_json::json!({
+            "multiple": multiple,
+            "teacher_steps": scaled.teacher_steps,
+            "student_steps": scaled.student_steps,
+            "eval_views": scaled.eval_views,
+        });
+        let provenance = Provenance::new(&plan.config, &options.data, &point_plan)?;
         let point = if file.is_file() {
-            read_finished(&file, "a point of a budget curve")?
+            let point: BudgetPoint = read_finished(&file, "a point of a budget curve")?;
+            provenance.check(&point.provenance, &file)?;
+            point
         } else {
-            let scaled = QuickstartPlan {
-                teacher_steps: plan.teacher_steps * multiple,
-                student_steps: plan.student_steps * multiple,
-                ..plan.clone()
-            };
             let run = PipelineOptions {
                 out: dir.clone(),
                 ..options.clone()
@@ -75,12 +89,14 @@ pub fn budget_curve(
             let report = quickstart(&scaled, &run, student_job)?;
             let row = |row: AblationRow, m: &QuickstartModel| -> Result<RowResult> {
                 let seconds = mean_step_seconds(&m.run)?;
-                Ok(RowResult::of(row, m.steps, seconds, &m.evaluation))
+                let p = provenance.clone();
+                Ok(RowResult::of(row, m.steps, seconds, &m.evaluation, p))
             };
             let point = BudgetPoint {
                 multiple,
                 teacher: row(AblationRow::Teacher, &report.teacher)?,
                 student: row(AblationRow::Progressive, &report.student)?,
+                provenance: provenance.clone(),
             };
             write_json(&file, &point).map_err(|e| TrainError::io(&file, e))?;
             point

@@ -123,6 +123,9 @@ pub enum TrainError {
     /// A training worker failed on one of the devices.
     #[error("training step failed: {0}")]
     Worker(String),
+    /// An input given to an interactive command (`prism view`) cannot be used: what is wrong.
+    #[error("{0}")]
+    Input(String),
 }
 
 impl TrainError {

@@ -9,7 +9,7 @@
 //! baseline (view 0 taken as the prediction of every target view), and, for a model with a 3DGS
 //! head, of its render `I_gs`. Each method is also scored in the disoccluded region of every
 //! view (the target's foreground that the source does not see, where a warp has nothing to
-//! copy; `prism_data::disoccluded_region`).
+//! copy; `prism_data::Sample::disoccluded_region`).
 
 use std::collections::BTreeMap;
 use std::fs;
@@ -22,8 +22,7 @@ use indicatif::ProgressBar;
 use prism_core::BackendKind;
 use prism_core::protocol::EVAL_TARGETS;
 use prism_data::{
-    DatasetReader, PrismBatcher, Sample, SampleDataset, SplitKind, TargetSelection,
-    disoccluded_region,
+    DatasetReader, PrismBatcher, RegionMethod, Sample, SampleDataset, SplitKind, TargetSelection,
 };
 use prism_losses::{ImageScores, Lpips, psnr_region_filled, score_images, score_region};
 use prism_model::{Precision, Prism};
@@ -37,7 +36,7 @@ use crate::predict::{Pairs, forward_pairs, inference_model, synthesise};
 use crate::report::{EvaluationFiles, write_evaluation};
 use crate::tally::{DisoccludedScores, MeanScores, MethodScores, PerAngle, Tally};
 use crate::validate::validation_views;
-use crate::warp::true_depth_warp;
+use crate::warp::{WARP_FOOTPRINTS, true_depth_warp};
 use prism_core::images::HostImages;
 
 /// How an evaluation runs.
@@ -98,6 +97,9 @@ pub struct Evaluation {
     /// region taken from the ground truth.
     #[serde(flatten)]
     pub disoccluded: Option<DisoccludedScores>,
+    /// How the disoccluded regions were found (`disoccluded_by` in the JSON): by the depth
+    /// test, or estimated for a dataset without depth maps (when any view lacked one).
+    pub disoccluded_by: RegionMethod,
     /// Image side of the evaluation, pixels (the model's resolution).
     pub resolution: u32,
     /// Target views per subject.
@@ -106,10 +108,14 @@ pub struct Evaluation {
     /// prediction of every target view. A model that does not beat it has learnt nothing about
     /// other viewpoints.
     pub copy_source: MethodScores,
-    /// The true-depth warp on the same views (`true_depth_warp` in the JSON): the source's
-    /// pixels as Gaussians at the dataset's own 3D points ([`crate::warp`]), what a
-    /// geometric output would show with perfect geometry.
+    /// The true-depth warp baseline on the same views (`true_depth_warp` in the JSON): the
+    /// source's pixels as Gaussians at the dataset's own 3D points ([`crate::warp`]), at the
+    /// footprint of [`WARP_FOOTPRINTS`] with the best mean PSNR.
     pub true_depth_warp: MethodScores,
+    /// The footprint (source pixels) of the reported true-depth warp.
+    pub true_depth_warp_footprint: f32,
+    /// Every footprint the warp was rendered at, with its mean PSNR (dB).
+    pub true_depth_warp_sweep: Vec<FootprintPsnr>,
     /// The 3DGS head's render `I_gs` (over the background) on the same views, from a forward
     /// pass with the head; `None` (absent from the JSON) for a model without a 3DGS head.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -125,6 +131,15 @@ impl Evaluation {
             lpips: self.lpips,
         }
     }
+}
+
+/// The true-depth warp's mean PSNR at one footprint.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct FootprintPsnr {
+    /// Size of the warp's Gaussians, in source pixels.
+    pub footprint: f32,
+    /// Mean PSNR in dB, averaged like the model's.
+    pub psnr: f64,
 }
 
 /// One subject's sample grid: per row source | prediction | ground truth | error map.
@@ -214,7 +229,9 @@ pub fn evaluate(
         TargetSelection::Evaluation { per_sample: 1 },
         Some((resolution, resolution)),
         0,
-    )?;
+    )?
+    .with_depth();
+    let mut disoccluded_by = RegionMethod::DepthTest;
     let background = reader.meta().background;
     let views = validation_views(options.views);
     let grid_views: Vec<usize> = validation_views(options.grid_views.min(views.len()))
@@ -224,7 +241,7 @@ pub fn evaluate(
     let subjects = dataset.subjects().to_vec();
     let bar = progress_bar(options.progress, (subjects.len() * views.len()) as u64);
     let (mut nvs, mut copy, mut gs) = (Tally::default(), Tally::default(), Tally::default());
-    let mut warp = Tally::default();
+    let mut warps: Vec<Tally> = WARP_FOOTPRINTS.iter().map(|_| Tally::default()).collect();
     let mut grids = Vec::new();
     let mut fps_pair = None;
     for (s, subject) in subjects.iter().enumerate() {
@@ -247,7 +264,10 @@ pub fn evaluate(
             let out = forward_pairs(if has_gs { model } else { &fast }, &pairs);
             let pred = out.image.clamp(0.0, 1.0);
             let gt = batch.target_image.clone();
-            let region = disoccluded_regions(&samples, device);
+            let (region, method) = disoccluded_regions(&samples, device);
+            if method == RegionMethod::Estimate {
+                disoccluded_by = method;
+            }
             let score = |tally: &mut Tally, image: Tensor<4>| {
                 tally.add_batch(&samples, &score_images(image.clone(), gt.clone(), lpips));
                 let in_region = score_region(image.clone(), gt.clone(), region.clone(), lpips);
@@ -256,7 +276,12 @@ pub fn evaluate(
             };
             score(&mut nvs, pred.clone());
             score(&mut copy, batch.source_image.clone());
-            score(&mut warp, true_depth_warp(&samples, background, device));
+            for (tally, &footprint) in warps.iter_mut().zip(&WARP_FOOTPRINTS) {
+                score(
+                    tally,
+                    true_depth_warp(&samples, background, footprint, device),
+                );
+            }
             if let Some(g) = out.gaussians {
                 score(&mut gs, g.image.clamp(0.0, 1.0));
             }
@@ -292,6 +317,18 @@ pub fn evaluate(
         None => f64::NAN,
     };
     let nvs = nvs.finish();
+    let warps: Vec<MethodScores> = warps.into_iter().map(Tally::finish).collect();
+    let true_depth_warp_sweep: Vec<FootprintPsnr> = WARP_FOOTPRINTS
+        .iter()
+        .zip(&warps)
+        .map(|(&footprint, w)| FootprintPsnr {
+            footprint,
+            psnr: w.psnr,
+        })
+        .collect();
+    let best = (0..warps.len())
+        .max_by(|&a, &b| warps[a].psnr.total_cmp(&warps[b].psnr))
+        .expect("at least one footprint");
     Ok((
         Evaluation {
             psnr: nvs.psnr,
@@ -301,31 +338,38 @@ pub fn evaluate(
             subjects: nvs.subjects,
             per_angle: nvs.per_angle,
             disoccluded: nvs.disoccluded,
+            disoccluded_by,
             resolution,
             views_per_subject: views.len(),
             copy_source: copy.finish(),
-            true_depth_warp: warp.finish(),
+            true_depth_warp: warps[best].clone(),
+            true_depth_warp_footprint: WARP_FOOTPRINTS[best],
+            true_depth_warp_sweep,
             gs: has_gs.then(|| gs.finish()),
         },
         grids,
     ))
 }
 
-/// The disoccluded region of each sample's (first) target view, `[B, 1, H, W]` on `device`.
-fn disoccluded_regions(samples: &[Sample], device: &Device) -> Tensor<4> {
+/// The disoccluded region of each sample's (first) target view, `[B, 1, H, W]` on `device`,
+/// and how it was found (the estimate when any sample lacked depth maps).
+fn disoccluded_regions(samples: &[Sample], device: &Device) -> (Tensor<4>, RegionMethod) {
     let target = &samples[0].targets[0];
     let (w, h) = (target.mask.width() as usize, target.mask.height() as usize);
-    let values: Vec<f32> = samples
-        .iter()
-        .flat_map(|s| {
-            let t = &s.targets[0];
-            disoccluded_region(&s.points, &s.source.mask, &t.camera, &t.mask).into_raw()
-        })
-        .collect();
-    Tensor::from_data(
+    let mut method = RegionMethod::DepthTest;
+    let mut values = Vec::with_capacity(samples.len() * w * h);
+    for sample in samples {
+        let (region, by) = sample.disoccluded_region(0);
+        if by == RegionMethod::Estimate {
+            method = by;
+        }
+        values.extend(region.into_raw());
+    }
+    let region = Tensor::from_data(
         burn::tensor::TensorData::new(values, [samples.len(), 1, h, w]),
         device,
-    )
+    );
+    (region, method)
 }
 
 /// Forward passes per second of `model` on `pair` (one pair): two warm-up passes, then `runs`

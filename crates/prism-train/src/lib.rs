@@ -44,6 +44,7 @@ pub mod loss_scale;
 pub mod parallel;
 pub mod plot;
 pub mod predict;
+pub mod provenance;
 pub mod quickstart;
 pub mod report;
 pub mod schedule;
@@ -56,6 +57,7 @@ pub mod teacher;
 pub mod trainer;
 pub mod training_step;
 pub mod validate;
+pub mod viewer;
 pub mod warp;
 
 pub use ablate::{
@@ -87,6 +89,7 @@ pub use loss_scale::{LossScaleConfig, LossScaleState, LossScaler};
 pub use parallel::{DataParallel, TrainingDevice, fingerprint, training_devices};
 pub use plot::{PLOT_FILE, PLOT_SIZE, TrainingCurves, plot_metrics, plot_run};
 pub use predict::{Pairs, forward_pairs, inference_model, synthesise};
+pub use provenance::Provenance;
 pub use quickstart::{
     ModelPhases, PHASES_FILE, PipelineOptions, QuickstartModel, QuickstartPlan, QuickstartReport,
     STUDENT_RUN, StudentJob, TEACHER_RUN, compress_schedule, phase_table, phases_json, quickstart,

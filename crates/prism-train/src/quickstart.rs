@@ -18,7 +18,7 @@ use prism_core::phases::{Phase, PhaseTimes, phase_totals, timed};
 use prism_losses::{NO_VALUE, ScoreTable};
 use serde_json::{Map, Value, json};
 
-use crate::checkpoint::list_checkpoints;
+use crate::checkpoint::{Checkpoint, check_resumable, list_checkpoints};
 use crate::config::TrainingConfig;
 use crate::error::{Result, TrainError};
 use crate::evaluate::{EvaluateOptions, Evaluation, evaluate_checkpoint};
@@ -125,22 +125,40 @@ pub struct PipelineOptions {
     pub progress: bool,
 }
 
-/// The options of the run of `steps` steps in `dir` that continues what a killed job left
-/// there: `None` when `dir` holds a finished run (a checkpoint at `steps`), a resuming run when
-/// it holds an earlier checkpoint, else a fresh run (the folder cleared of anything written
-/// before a first checkpoint). Long jobs made of runs (an ablation's rows, the quick starts of
-/// a budget curve) train each run once however often they are interrupted.
+/// The options of the run of `steps` steps with `config` in `dir` that continues what a killed
+/// job left there: `None` when `dir` holds this config's finished run (a checkpoint at `steps`),
+/// a resuming run when it holds an earlier checkpoint (the trainer checks its config), else a
+/// fresh run (the folder cleared of anything written before a first checkpoint). Long jobs made
+/// of runs (an ablation's rows, the quick starts of a budget curve) train each run once however
+/// often they are interrupted.
 ///
 /// # Errors
-/// A checkpoint past `steps` (another job's run: it must not be cut short or mixed in), I/O.
+/// A checkpoint past `steps`, or a finished run made with another config (another job's run:
+/// it must not be cut short, mixed in or reused), I/O.
 pub(crate) fn continue_run(
     dir: &Path,
     steps: usize,
+    config: &TrainingConfig,
     options: &PipelineOptions,
 ) -> Result<Option<RunOptions>> {
-    let done = list_checkpoints(dir)?.last().map(|&(step, _)| step);
+    let latest = list_checkpoints(dir)?.pop();
+    if let Some((done, checkpoint)) = &latest
+        && *done == steps
+    {
+        return match check_resumable(&Checkpoint::read(checkpoint)?, config) {
+            Ok(()) => Ok(None),
+            Err(TrainError::ConfigMismatch { what, .. }) => Err(TrainError::RunFolder {
+                path: dir.to_path_buf(),
+                message: format!(
+                    "holds a finished run made with another config ({what}): use another \
+                     --out, or remove the folder to train it again"
+                ),
+            }),
+            Err(e) => Err(e),
+        };
+    }
+    let done = latest.map(|(step, _)| step);
     match done {
-        Some(done) if done == steps => return Ok(None),
         Some(done) if done > steps => {
             return Err(TrainError::RunFolder {
                 path: dir.to_path_buf(),
@@ -296,7 +314,7 @@ pub fn quickstart(
 
     let teacher_dir = options.out.join(TEACHER_RUN);
     let (t0, before) = (Instant::now(), phase_totals());
-    let teacher_run = continue_run(&teacher_dir, plan.teacher_steps, options)?;
+    let teacher_run = continue_run(&teacher_dir, plan.teacher_steps, &plan.config, options)?;
     let teacher_trained = teacher_run.is_some();
     if let Some(run) = teacher_run {
         let task = TeacherTask {
@@ -314,7 +332,7 @@ pub fn quickstart(
     let mut student_config = plan.config.clone();
     compress_schedule(&mut student_config, plan.student_steps);
     let (t0, before) = (Instant::now(), phase_totals());
-    if let Some(run) = continue_run(&student_dir, plan.student_steps, options)? {
+    if let Some(run) = continue_run(&student_dir, plan.student_steps, &student_config, options)? {
         student_job(&student_config, &teacher_dir, &run)?;
     }
     let student = evaluate_run(&student_dir, plan.student_steps, t0, before)?;

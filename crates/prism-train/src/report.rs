@@ -5,6 +5,7 @@ use std::fmt::Write as _;
 use std::fs;
 use std::path::{Path, PathBuf};
 
+use prism_data::RegionMethod;
 use prism_losses::{NO_VALUE, ScoreTable, score_cells};
 
 use crate::error::{Result, TrainError};
@@ -13,7 +14,6 @@ use crate::images::{save_png, save_text};
 use crate::log::METRICS_FILE;
 use crate::plot::{PLOT_FILE, plot_metrics};
 use crate::tally::{MeanScores, MethodScores};
-use crate::warp::WARP_SCALE;
 
 /// File name of the JSON scores in an evaluation folder.
 pub const EVALUATION_JSON: &str = "evaluation.json";
@@ -231,29 +231,55 @@ pub fn markdown_report(
         e.ssim - c.ssim,
         e.lpips - c.lpips
     );
+    let sweep: Vec<String> = e
+        .true_depth_warp_sweep
+        .iter()
+        .map(|f| format!("{} px {:.3} dB", f.footprint, f.psnr))
+        .collect();
     let _ = writeln!(
         out,
-        "The source warped at the true depth is its foreground pixels as Gaussians at the \
-         dataset's own 3D points ({WARP_SCALE} pixel footprints), rendered into each target \
-         view: what a warp shows with perfect geometry. Model minus it: PSNR {:+.3} dB.\n",
+        "The source warped at the true depth, a baseline, is its foreground pixels as Gaussians \
+         at the dataset's own 3D points, rendered into each target view: what a geometric \
+         output shows with the dataset's depth and the source's colours. Its Gaussians' size \
+         matters, so it was rendered at several footprints ({}) and the best, {} source pixels, \
+         is reported. Model minus it: PSNR {:+.3} dB.\n",
+        sweep.join(", "),
+        e.true_depth_warp_footprint,
         e.psnr - e.true_depth_warp.psnr
     );
     if let Some(table) = disoccluded_table(e) {
+        let how = match e.disoccluded_by {
+            RegionMethod::DepthTest => {
+                "each target pixel's surface point, from the dataset's depth maps, tested against \
+                 the source's depth map"
+            }
+            RegionMethod::Estimate => {
+                "an estimate: this dataset stores no depth maps, so the source's visible surface \
+                 is reprojected into the target without occlusion there, which misses \
+                 disoccluded pixels; synthesise the dataset again for the exact region"
+            }
+        };
         let _ = writeln!(
             out,
             "## In the disoccluded region\n\nThe same scores on each target view's foreground \
-             that the source view does not see (the source's visible surface reprojected into \
-             the target; views without such pixels left out): there a warp of the source has \
-             nothing to copy. LPIPS there is that of the prediction pasted into the ground truth \
-             on the region.\n"
+             that the source view does not see ({how}; views without such pixels left out): \
+             there a warp of the source has nothing to copy. LPIPS there is that of the \
+             prediction pasted into the ground truth on the region.\n"
         );
         out.push_str(&table.to_markdown());
         if let Some(d) = e.disoccluded {
+            let bound = match e.disoccluded_by {
+                RegionMethod::DepthTest => {
+                    "the most that a better guess of what the source does not see can add"
+                }
+                RegionMethod::Estimate => {
+                    "not a bound, since the estimated region misses disoccluded pixels"
+                }
+            };
             let _ = writeln!(
                 out,
                 "\nWith this region taken from the ground truth the model would score {:.3} dB \
-                 overall ({:+.3} dB): the most that any better guess of what the source does not \
-                 show can add.",
+                 overall ({:+.3} dB): {bound}.",
                 d.psnr_region_filled,
                 d.psnr_region_filled - e.psnr
             );

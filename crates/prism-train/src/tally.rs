@@ -65,7 +65,7 @@ impl PerAngle {
 }
 
 /// The means of the scores in the disoccluded region (the target's foreground that the source
-/// view does not see, see `prism_data::disoccluded_region`), averaged like the overall scores;
+/// view does not see, see `prism_data::Sample::disoccluded_region`), averaged like the overall scores;
 /// views without such pixels, and NaN scores, are left out of the means.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct DisoccludedScores {

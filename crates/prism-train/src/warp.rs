@@ -1,33 +1,40 @@
-//! The true-depth warp: the source view's foreground pixels as Gaussians at the dataset's own
-//! 3D points, rendered into each target camera. It is what a geometric output like `I_gs`
-//! would show with perfect geometry and the source's exact colours, so `prism evaluate`
-//! scores it beside copy-source: the gap between a model's `I_gs` and this warp is what better
-//! depth could still give, and what a model gains above it had to be synthesised.
+//! The true-depth warp, a baseline: the source view's foreground pixels as Gaussians at the
+//! dataset's own 3D points, rendered into each target camera. It shows what a geometric
+//! output like `I_gs` gives with the dataset's depth and the source's exact colours, so
+//! `prism evaluate` scores it beside copy-source. It is not a bound: how well a splatted warp
+//! does depends on its Gaussians' size, so evaluation sweeps the footprints in
+//! [`WARP_FOOTPRINTS`] and reports the best.
 
 use burn::tensor::{Device, Tensor};
 use prism_data::{FOREGROUND, Sample};
 use prism_render::splat::{GaussianCloud, SH_C0, background, render};
 
-/// Size of each Gaussian, in footprints of one source pixel at its distance (isotropic): the
-/// shipped configs' `gs_scale`, so that the warp is `I_gs` at initialisation with true depth.
-pub const WARP_SCALE: f32 = 0.3;
+/// The sizes `prism evaluate` renders the warp at, in footprints of one source pixel at its
+/// distance (isotropic Gaussians): from a tenth of a pixel (sharp, with gaps where the surface
+/// stretches) to half a pixel (no gaps, softer); 0.3 is the shipped configs' `gs_scale`.
+pub const WARP_FOOTPRINTS: [f32; 4] = [0.1, 0.2, 0.3, 0.5];
 
 /// Opacity of a foreground pixel's Gaussian (the largest the keying of `gs_keying` gives).
 const WARP_OPACITY: f32 = 0.99;
 
-/// The true-depth warp of each sample's source into its (first) target camera, `[B, 3, H, W]`
-/// in [0, 1] over `bg`.
+/// The true-depth warp of each sample's source into its (first) target camera, its Gaussians
+/// `footprint` source pixels wide, `[B, 3, H, W]` in [0, 1] over `bg`.
 ///
 /// # Panics
 /// If a sample's point map and source image differ in size.
-pub fn true_depth_warp(samples: &[Sample], bg: [f32; 3], device: &Device) -> Tensor<4> {
+pub fn true_depth_warp(
+    samples: &[Sample],
+    bg: [f32; 3],
+    footprint: f32,
+    device: &Device,
+) -> Tensor<4> {
     let images = samples
         .iter()
         .map(|sample| {
             let camera = sample.targets[0].camera;
             let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
             let fill = background(&bg, device);
-            let cloud = source_cloud(sample);
+            let cloud = source_cloud(sample, footprint);
             if cloud.means.is_empty() {
                 return fill
                     .reshape([1, 3, 1, 1])
@@ -42,8 +49,9 @@ pub fn true_depth_warp(samples: &[Sample], bg: [f32; 3], device: &Device) -> Ten
     Tensor::cat(images, 0)
 }
 
-/// One Gaussian per foreground pixel of the source: at its point, with its colour.
-fn source_cloud(sample: &Sample) -> GaussianCloud {
+/// One Gaussian per foreground pixel of the source: at its point, with its colour,
+/// `footprint` source pixels wide.
+fn source_cloud(sample: &Sample, footprint: f32) -> GaussianCloud {
     let source = &sample.source;
     assert_eq!(
         (sample.points.width, sample.points.height),
@@ -69,7 +77,7 @@ fn source_cloud(sample: &Sample) -> GaussianCloud {
             continue;
         }
         let distance = glam::Vec3::from_array(*point).distance(centre);
-        let log_scale = (WARP_SCALE * distance / focal).ln();
+        let log_scale = (footprint * distance / focal).ln();
         cloud.means.push(*point);
         cloud.normals.push([0.0; 3]);
         cloud.sh_dc.push(rgb.0.map(|c| (c - 0.5) / SH_C0));
@@ -113,6 +121,7 @@ mod tests {
             camera,
             rgb,
             mask,
+            depth: None,
         }
     }
 
@@ -169,7 +178,12 @@ mod tests {
         // Into the source camera itself: the source's colours, away from the square's border
         // (the Gaussians blur it by about a pixel).
         let same = sample(0.0, true);
-        let warp = pixels(true_depth_warp(std::slice::from_ref(&same), BG, &device));
+        let warp = pixels(true_depth_warp(
+            std::slice::from_ref(&same),
+            BG,
+            0.3,
+            &device,
+        ));
         for y in 10..22 {
             for x in 10..22 {
                 let source = same.source.rgb.get_pixel(x, y).0;
@@ -189,7 +203,7 @@ mod tests {
         );
         // A camera 0.25 m to the right, the plane 2 m away: 32 * 0.25 / 2 = 4 pixels of
         // parallax, so the square and its colours move 4 pixels to the left.
-        let moved = pixels(true_depth_warp(&[sample(0.25, true)], BG, &device));
+        let moved = pixels(true_depth_warp(&[sample(0.25, true)], BG, 0.3, &device));
         for y in 10..22 {
             for x in 6..18 {
                 for c in 0..3 {
@@ -200,7 +214,7 @@ mod tests {
         }
         assert_eq!(at(&moved, 0, 23, 16), 1.0, "uncovered on the right");
         // No foreground: the background.
-        let empty = pixels(true_depth_warp(&[sample(0.0, false)], BG, &device));
+        let empty = pixels(true_depth_warp(&[sample(0.0, false)], BG, 0.3, &device));
         assert!(empty.iter().all(|&v| v == 1.0));
     }
 }

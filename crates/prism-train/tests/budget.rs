@@ -1,6 +1,6 @@
 //! `prism bench budget`'s library call on a shrunken quick start (32 px, a few steps, ndarray):
-//! two multiples run as quick starts in their own folders, the table and the plot, and a
-//! second call keeps the finished multiples. The student job here fine-tunes the teacher's
+//! two multiples run as quick starts in their own folders, the table and the plot, a second
+//! call keeps the finished multiples, and a call with another plan or config refuses them. The student job here fine-tunes the teacher's
 //! weights with the teacher's objective (`prism distill-student` is the real one).
 
 mod common;
@@ -46,6 +46,30 @@ fn budget_curve_runs_each_multiple_once_and_plots_them() {
         assert!((a.student.model.psnr - p.student.model.psnr).abs() < 1e-9);
     }
     assert_eq!(again[2].teacher.steps, 6);
+    assert_eq!(std::fs::read(&metrics).unwrap(), before);
+
+    // Another plan (fewer views) or another config: the finished points are not reused, and
+    // the refusal names the point and what differs.
+    let fewer_views = prism_train::QuickstartPlan {
+        eval_views: 1,
+        ..plan.clone()
+    };
+    let err = budget_curve(&fewer_views, &[1], &options, student)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("1x/point.json") && err.contains("another plan"),
+        "{err}"
+    );
+    let mut other_config = plan.clone();
+    other_config.config.train.lr_heads *= 2.0;
+    let err = budget_curve(&other_config, &[2], &options, student)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("2x/point.json") && err.contains("another config"),
+        "{err}"
+    );
     assert_eq!(std::fs::read(&metrics).unwrap(), before);
     let _ = std::fs::remove_dir_all(&root);
 }

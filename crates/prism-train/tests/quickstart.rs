@@ -111,6 +111,18 @@ fn quickstart_trains_evaluates_both_models_and_tabulates() {
         report.teacher.evaluation.psnr
     ));
     assert!(close(resumed.student.evaluation.psnr, student_psnr));
+
+    // Another config on the finished folder is refused, naming the setting, not reused.
+    let mut other = plan.clone();
+    other.config.train.lr_heads *= 2.0;
+    let err = quickstart(&other, &options, &fine_tune_student)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("out/teacher") && err.contains("train.lr_heads") && err.contains("--out"),
+        "{err}"
+    );
+    assert_eq!(metrics(&teacher), log);
     let _ = std::fs::remove_dir_all(&root);
 }
 

@@ -5,7 +5,8 @@
 //!
 //! Each row lives in its own folder of the ablation's (`teacher/`, `progressive/`, ...): the run,
 //! its `evaluation/` and, once both are done, [`ROW_FILE`]. A row with that file is not trained
-//! again; a row interrupted during training resumes from its last checkpoint. The table
+//! again if the file's [`Provenance`] (config, dataset, plan) is the row's, and refused if not;
+//! a row interrupted during training resumes from its last checkpoint. The table
 //! ([`TABLE_FILE`]), its JSON ([`JSON_FILE`]) and bar chart ([`CHART_FILE`]) are rewritten after
 //! every row.
 
@@ -29,6 +30,7 @@ use crate::error::{Result, TrainError};
 use crate::evaluate::{EvaluateOptions, Evaluation, evaluate_checkpoint};
 use crate::images::save_png;
 use crate::log::{METRICS_FILE, read_metrics};
+use crate::provenance::Provenance;
 use crate::quickstart::{PipelineOptions, compress_schedule, continue_run};
 use crate::student::distill_student;
 use crate::teacher::TeacherTask;
@@ -99,6 +101,9 @@ pub struct RowResult {
     pub copy_source: ImageScores,
     /// The baseline in the disoccluded region.
     pub copy_source_disoccluded: Option<ImageScores>,
+    /// What the row was made from; a finished row is kept only for the same.
+    #[serde(default)]
+    pub provenance: Provenance,
 }
 
 impl RowResult {
@@ -108,6 +113,7 @@ impl RowResult {
         steps: usize,
         seconds_per_step: f64,
         e: &Evaluation,
+        provenance: Provenance,
     ) -> Self {
         Self {
             row: row.name().into(),
@@ -126,6 +132,7 @@ impl RowResult {
                 .map(|d| d.scores()),
             copy_source: e.copy_source.mean(),
             copy_source_disoccluded: e.copy_source.disoccluded.map(|d| d.scores()),
+            provenance,
         }
     }
 }
@@ -171,7 +178,7 @@ impl AblationFiles {
 /// table, its JSON and its chart there.
 ///
 /// # Errors
-/// A row folder finished at another budget, any error of training or evaluation (naming the
+/// A row folder finished from another config, dataset or plan, any error of training or evaluation (naming the
 /// row's folder), or a file that cannot be written.
 pub fn ablate(plan: &AblationPlan, options: &PipelineOptions) -> Result<(Ablation, AblationFiles)> {
     std::fs::create_dir_all(&options.out).map_err(|e| TrainError::io(&options.out, e))?;
@@ -200,7 +207,8 @@ pub fn ablate(plan: &AblationPlan, options: &PipelineOptions) -> Result<(Ablatio
     Ok((ablation, files))
 }
 
-/// One row: kept if finished at this budget, else trained (or resumed) and evaluated.
+/// One row: kept if finished from the same config, dataset and plan, else trained (or
+/// resumed) and evaluated.
 fn run_row(
     row: AblationRow,
     plan: &AblationPlan,
@@ -210,28 +218,22 @@ fn run_row(
     let dir = options.out.join(row.name());
     let file = dir.join(ROW_FILE);
     let steps = plan.steps(row);
+    let mut config = row.config(&plan.config);
+    if row.is_student() {
+        compress_schedule(&mut config, steps);
+    }
+    let row_plan = serde_json::json!({"row": row.name(), "steps": steps, "views": plan.views});
+    let provenance = Provenance::new(&config, &options.data, &row_plan)?;
     if file.is_file() {
         let done = read_row(&file)?;
-        if (done.steps, done.views) != (steps, plan.views) {
-            return Err(TrainError::RunFolder {
-                path: file,
-                message: format!(
-                    "this row was trained for {} steps and scored on {} views per person, the \
-                     ablation asks {steps} and {}: use another --out, or remove the row's folder \
-                     to train it again",
-                    done.steps, done.views, plan.views
-                ),
-            });
-        }
+        provenance.check(&done.provenance, &file)?;
         if options.progress {
             eprintln!("ablate: {} is done ({}), kept", row.name(), file.display());
         }
         return Ok(done);
     }
-    if let Some(run) = continue_run(&dir, steps, options)? {
-        let mut config = row.config(&plan.config);
+    if let Some(run) = continue_run(&dir, steps, &config, options)? {
         if row.is_student() {
-            compress_schedule(&mut config, steps);
             distill_student(&config, teacher, &run)?;
         } else {
             let task = TeacherTask {
@@ -253,7 +255,8 @@ fn run_row(
         options.lpips_weights.as_deref(),
         &eval,
     )?;
-    let result = RowResult::of(row, steps, mean_step_seconds(&dir)?, &evaluation);
+    let seconds = mean_step_seconds(&dir)?;
+    let result = RowResult::of(row, steps, seconds, &evaluation, provenance);
     write_json(&file, &result).map_err(|e| TrainError::io(&file, e))?;
     Ok(result)
 }

@@ -119,6 +119,7 @@ mod tests {
             gs_disoccluded: gs.map(|_| scores(12.5)),
             copy_source: scores(18.0),
             copy_source_disoccluded: Some(scores(9.0)),
+            provenance: Default::default(),
         };
         let ablation = Ablation {
             config: "tiny".into(),

@@ -12,7 +12,7 @@ use image::{Luma, Rgb, Rgb32FImage};
 use prism_core::BackendKind;
 use prism_core::CameraRecord;
 use prism_core::{Camera, Intrinsics, ViewingProtocol};
-use prism_data::{DatasetMeta, DatasetWriter, Mask, PointMap, Split, SubjectRecord};
+use prism_data::{DatasetMeta, DatasetWriter, DepthMap, Mask, PointMap, Split, SubjectRecord};
 use prism_train::{Checkpoint, TrainingConfig, configs_dir, parameter_values};
 
 struct Blob {
@@ -111,7 +111,10 @@ pub fn write_dataset_at_depth(root: &Path, subjects: usize, res: u32, depth: f32
             let mask = Mask::from_fn(res, res, |x, y| {
                 Luma([hit(&blobs, &cam, x, y).map_or(0.0, |_| 1.0)])
             });
-            w.write_view(view.index, &rgb, &mask).unwrap();
+            let depth = DepthMap::from_fn(res, res, |x, y| {
+                Luma([hit(&blobs, &cam, x, y).map_or(0.0, |(p, _)| cam.project(p).2)])
+            });
+            w.write_view(view.index, &rgb, &mask, &depth).unwrap();
             if view.index == 0 {
                 points = Some(PointMap {
                     width: res,
