@@ -122,7 +122,8 @@ struct At {
     pitch: f32,
 }
 
-/// Runs `work` on the viewer in a blocking thread (the models compute on it).
+/// Runs `work` on the viewer in a blocking thread, never on the async workers: the models
+/// compute while holding the lock.
 async fn with_viewer<T: Send + 'static>(
     viewer: Shared,
     work: impl FnOnce(&mut Viewer) -> prism_train::error::Result<T> + Send + 'static,
@@ -142,15 +143,19 @@ fn refusal(status: StatusCode, message: String) -> Response {
 }
 
 async fn info(State(viewer): State<Shared>) -> Response {
-    let v = viewer.lock().unwrap_or_else(|p| p.into_inner());
-    axum::Json(json!({
-        "models": v.models(),
-        "people": v.people(),
-        "backend": v.backend().to_string(),
-        "resolution": v.resolution(),
-        "max_angle_deg": v.max_angle_deg(),
-    }))
-    .into_response()
+    let described = with_viewer(viewer, |v| {
+        Ok(json!({
+            "models": v.models(),
+            "people": v.people(),
+            "backend": v.backend().to_string(),
+            "resolution": v.resolution(),
+            "max_angle_deg": v.max_angle_deg(),
+        }))
+    });
+    match described.await {
+        Ok(info) => axum::Json(info).into_response(),
+        Err(refused) => refused,
+    }
 }
 
 async fn frame(State(viewer): State<Shared>, Query(at): Query<At>) -> Response {

@@ -359,7 +359,7 @@ impl SampleDataset {
         let depth = if self.depth {
             self.reader
                 .depth(&self.subjects[subject_index], index)?
-                .map(|d| resize_nearest(&d, (w, h)))
+                .map(|d| resize_nearest(d, (w, h)))
         } else {
             None
         };
@@ -383,9 +383,9 @@ fn nearest(i: u32, to: u32, from: u32) -> u32 {
 
 /// Resamples a depth map to `size` by nearest neighbour (as [`resize_points`]: averaging
 /// depths across an edge would invent surface between the two sides).
-fn resize_nearest(map: &DepthMap, (w, h): (u32, u32)) -> DepthMap {
+fn resize_nearest(map: DepthMap, (w, h): (u32, u32)) -> DepthMap {
     if map.dimensions() == (w, h) {
-        return map.clone();
+        return map;
     }
     let (from_w, from_h) = map.dimensions();
     DepthMap::from_fn(w, h, |x, y| {

@@ -22,7 +22,7 @@ use crate::ablate::{AblationRow, RowResult, mean_step_seconds, read_finished};
 use crate::error::{Result, TrainError};
 use crate::images::save_png;
 use crate::plot::{FONT, draw_legend_box, register_font};
-use crate::provenance::Provenance;
+use crate::provenance::{Provenance, dataset_digest_of};
 use crate::quickstart::{PipelineOptions, QuickstartModel, QuickstartPlan, StudentJob, quickstart};
 
 /// A finished multiple's result, in its folder.
@@ -62,6 +62,7 @@ pub fn budget_curve(
 ) -> Result<(Vec<BudgetPoint>, PathBuf)> {
     let mut points = Vec::new();
     let table = options.out.join(BUDGET_TABLE);
+    let dataset = dataset_digest_of(&options.data)?;
     for &multiple in multiples {
         let dir = options.out.join(format!("{multiple}x"));
         let file = dir.join(POINT_FILE);
@@ -76,7 +77,7 @@ pub fn budget_curve(
             "student_steps": scaled.student_steps,
             "eval_views": scaled.eval_views,
         });
-        let provenance = Provenance::new(&plan.config, &options.data, &point_plan)?;
+        let provenance = Provenance::new(&plan.config, &dataset, &point_plan);
         let point = if file.is_file() {
             let point: BudgetPoint = read_finished(&file, "a point of a budget curve")?;
             provenance.check(&point.provenance, &file)?;

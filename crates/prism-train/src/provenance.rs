@@ -25,20 +25,15 @@ pub struct Provenance {
 }
 
 impl Provenance {
-    /// The provenance of a result made by training with `config` on the dataset at `data`,
-    /// as `plan` says.
-    ///
-    /// # Errors
-    /// A dataset that cannot be opened or listed.
-    pub fn new(config: &TrainingConfig, data: &Path, plan: &impl Serialize) -> Result<Self> {
-        let reader = DatasetReader::open(data)?;
-        let dataset = dataset_digest(&reader).map_err(|e| TrainError::io(data, e))?;
+    /// The provenance of a result made by training with `config` on the dataset whose
+    /// [`dataset_digest_of`] is `dataset`, as `plan` says.
+    pub fn new(config: &TrainingConfig, dataset: &str, plan: &impl Serialize) -> Self {
         let text = |v: serde_json::Value| config_digest(&v.to_string());
-        Ok(Self {
+        Self {
             config: text(serde_json::to_value(config).expect("a config serialises")),
-            dataset,
+            dataset: dataset.to_string(),
             plan: text(serde_json::to_value(plan).expect("a plan serialises")),
-        })
+        }
     }
 
     /// Checks that `stored`, read from `file`, was made from this provenance.
@@ -71,6 +66,16 @@ impl Provenance {
             message: format!("{why}: use another --out, or remove its folder to make it again"),
         })
     }
+}
+
+/// The digest of the dataset at `data` (its `dataset.json` and file list): computed once per
+/// long job, for the provenance of each of its results.
+///
+/// # Errors
+/// A dataset that cannot be opened or listed.
+pub fn dataset_digest_of(data: &Path) -> Result<String> {
+    let reader = DatasetReader::open(data)?;
+    dataset_digest(&reader).map_err(|e| TrainError::io(data, e))
 }
 
 #[cfg(test)]

@@ -6,14 +6,16 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use burn::tensor::Device;
+use burn::tensor::{Device, Tensor, TensorData};
 use image::imageops::{FilterType, resize};
 use image::{DynamicImage, Rgb32FImage, RgbImage};
 use prism_core::BackendKind;
 use prism_core::camera::{Camera, Intrinsics};
 use prism_core::images::{HostImages, rgb32_to_rgb8};
 use prism_core::protocol::{SOURCE_VIEW, ViewAngles, ViewingProtocol};
+use prism_data::batch::rgb_chw;
 use prism_data::{CameraRecord, DatasetReader, SplitKind};
+use prism_losses::psnr;
 use prism_model::Prism;
 
 use crate::checkpoint::load_model;
@@ -27,7 +29,7 @@ pub const MAX_INPUT_SIDE: u32 = 4096;
 /// A model the viewer can switch to.
 #[derive(Debug)]
 struct ViewerModel {
-    /// Its name on the page (the checkpoint's task and folder).
+    /// Its name on the page (the checkpoint's folder name).
     name: String,
     /// The model, with its 3DGS head when it has one (for `I_gs`).
     model: Prism,
@@ -49,7 +51,7 @@ struct Input {
 struct Person {
     /// Subject folder name.
     subject: String,
-    /// Its recorded views' cameras (rescaled to the models' resolution).
+    /// Its recorded views' cameras, at the dataset's image size.
     cameras: Vec<CameraRecord>,
 }
 
@@ -230,9 +232,7 @@ impl Viewer {
     /// # Errors
     /// No input yet, a model index past the models, unreadable dataset files.
     pub fn frame(&self, model: usize, yaw_deg: f32, pitch_deg: f32) -> Result<Frame> {
-        let input = self.input.as_ref().ok_or_else(|| {
-            TrainError::Input("no input yet: upload a photo or pick a person".into())
-        })?;
+        let input = self.input()?;
         let model = self.model(model)?;
         let max = self.max_angle_deg();
         let (yaw, pitch) = (yaw_deg.clamp(-max, max), pitch_deg.clamp(-max, max));
@@ -272,12 +272,17 @@ impl Viewer {
             &self.device,
         );
         let out = forward_pairs(model, &pairs);
-        let nvs = HostImages::from_tensor(out.image.clamp(0.0, 1.0));
+        let image = out.image.clamp(0.0, 1.0);
+        let nvs = HostImages::from_tensor(image.clone());
         let gs = out
             .gaussians
             .map(|g| HostImages::from_tensor(g.image.clamp(0.0, 1.0)));
         let seconds = start.elapsed().as_secs_f64();
-        let psnr = truth.as_ref().map(|t| psnr(&nvs.images[0], t));
+        let psnr = truth.as_ref().map(|t| {
+            let (w, h) = (t.width() as usize, t.height() as usize);
+            let truth = Tensor::from_data(TensorData::new(rgb_chw(t), [1, 3, h, w]), &self.device);
+            psnr(image, truth)[0]
+        });
         Ok(Frame {
             nvs: nvs.rgb8(0),
             gs: gs.map(|g| g.rgb8(0)),
@@ -294,11 +299,9 @@ impl Viewer {
     /// file's bytes.
     ///
     /// # Errors
-    /// No input yet, a model without a 3DGS head, I/O of the temporary file.
+    /// No input yet, a model without a 3DGS head.
     pub fn ply(&self, model: usize) -> Result<Vec<u8>> {
-        let input = self.input.as_ref().ok_or_else(|| {
-            TrainError::Input("no input yet: upload a photo or pick a person".into())
-        })?;
+        let input = self.input()?;
         let pairs = Pairs::from_source(
             &input.image,
             input.camera,
@@ -311,11 +314,13 @@ impl Viewer {
                 "this model has no 3DGS head: it has no Gaussians to export".into(),
             ));
         };
-        let file = tempfile_path("ply");
-        gaussians.save_ply(0, &file)?;
-        let bytes = std::fs::read(&file).map_err(|e| TrainError::io(&file, e));
-        let _ = std::fs::remove_file(&file);
-        bytes
+        gaussians.cloud(0)?.to_bytes().map_err(TrainError::Input)
+    }
+
+    fn input(&self) -> Result<&Input> {
+        self.input.as_ref().ok_or_else(|| {
+            TrainError::Input("no input yet: upload a photo or pick a person".into())
+        })
     }
 
     fn model(&self, index: usize) -> Result<&Prism> {
@@ -374,30 +379,4 @@ fn nearest_view(cameras: &[CameraRecord], yaw: f32, pitch: f32) -> &CameraRecord
             d(a).total_cmp(&d(b))
         })
         .unwrap_or(&cameras[SOURCE_VIEW])
-}
-
-/// PSNR (dB) of a `[3, H, W]` prediction against an image of the same size.
-fn psnr(prediction: &[f32], truth: &Rgb32FImage) -> f64 {
-    let (w, h) = truth.dimensions();
-    let plane = (w * h) as usize;
-    let mut sum = 0.0f64;
-    for (i, p) in truth.pixels().enumerate() {
-        for c in 0..3 {
-            let d = f64::from(prediction[c * plane + i].clamp(0.0, 1.0) - p.0[c]);
-            sum += d * d;
-        }
-    }
-    let mse = sum / (3 * plane) as f64;
-    -10.0 * mse.max(1e-12).log10()
-}
-
-/// A fresh path in the temporary folder with extension `ext`.
-fn tempfile_path(ext: &str) -> PathBuf {
-    use std::sync::atomic::{AtomicUsize, Ordering};
-    static NEXT: AtomicUsize = AtomicUsize::new(0);
-    std::env::temp_dir().join(format!(
-        "prism-view-{}-{}.{ext}",
-        std::process::id(),
-        NEXT.fetch_add(1, Ordering::Relaxed)
-    ))
 }

@@ -54,22 +54,18 @@ fn budget_curve_runs_each_multiple_once_and_plots_them() {
         eval_views: 1,
         ..plan.clone()
     };
-    let err = budget_curve(&fewer_views, &[1], &options, student)
-        .unwrap_err()
-        .to_string();
-    assert!(
-        err.contains("1x/point.json") && err.contains("another plan"),
-        "{err}"
-    );
     let mut other_config = plan.clone();
     other_config.config.train.lr_heads *= 2.0;
-    let err = budget_curve(&other_config, &[2], &options, student)
-        .unwrap_err()
-        .to_string();
-    assert!(
-        err.contains("2x/point.json") && err.contains("another config"),
-        "{err}"
-    );
+    for (changed, multiple, what) in [(fewer_views, 1, "plan"), (other_config, 2, "config")] {
+        let err = budget_curve(&changed, &[multiple], &options, student)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains(&format!("{multiple}x/point.json"))
+                && err.contains(&format!("another {what}")),
+            "{err}"
+        );
+    }
     assert_eq!(std::fs::read(&metrics).unwrap(), before);
     let _ = std::fs::remove_dir_all(&root);
 }

@@ -30,7 +30,7 @@ use crate::error::{Result, TrainError};
 use crate::evaluate::{EvaluateOptions, Evaluation, evaluate_checkpoint};
 use crate::images::save_png;
 use crate::log::{METRICS_FILE, read_metrics};
-use crate::provenance::Provenance;
+use crate::provenance::{Provenance, dataset_digest_of};
 use crate::quickstart::{PipelineOptions, compress_schedule, continue_run};
 use crate::student::distill_student;
 use crate::teacher::TeacherTask;
@@ -191,6 +191,7 @@ pub fn ablate(plan: &AblationPlan, options: &PipelineOptions) -> Result<(Ablatio
     };
     let files = AblationFiles::in_folder(&options.out);
     let teacher = options.out.join(AblationRow::Teacher.name());
+    let dataset = dataset_digest_of(&options.data)?;
     for (i, &row) in plan.rows.iter().enumerate() {
         if options.progress {
             eprintln!(
@@ -201,7 +202,9 @@ pub fn ablate(plan: &AblationPlan, options: &PipelineOptions) -> Result<(Ablatio
                 plan.steps(row)
             );
         }
-        ablation.rows.push(run_row(row, plan, options, &teacher)?);
+        ablation
+            .rows
+            .push(run_row(row, plan, options, &teacher, &dataset)?);
         write_table(&ablation, &files)?;
     }
     Ok((ablation, files))
@@ -214,6 +217,7 @@ fn run_row(
     plan: &AblationPlan,
     options: &PipelineOptions,
     teacher: &Path,
+    dataset: &str,
 ) -> Result<RowResult> {
     let dir = options.out.join(row.name());
     let file = dir.join(ROW_FILE);
@@ -223,7 +227,7 @@ fn run_row(
         compress_schedule(&mut config, steps);
     }
     let row_plan = serde_json::json!({"row": row.name(), "steps": steps, "views": plan.views});
-    let provenance = Provenance::new(&config, &options.data, &row_plan)?;
+    let provenance = Provenance::new(&config, dataset, &row_plan);
     if file.is_file() {
         let done = read_row(&file)?;
         provenance.check(&done.provenance, &file)?;
