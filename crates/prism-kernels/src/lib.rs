@@ -10,7 +10,7 @@
 //! On the GPU backends (features `wgpu`, `cuda`) softmax attention can run flash-attention
 //! kernels in CubeCL (module `device`): forward and backward without the `T x T` scores, in
 //! f32, f16 or bf16, checked against the unfused attention on lavapipe
-//! (`tests/flash_attention.rs`); opt-in through [`GpuAttention`].
+//! (`tests/cli/device/flash_attention.rs`); opt-in through [`GpuAttention`].
 //!
 //! The functions below pick the kernel when the tensor is f32 on a CPU backend (flex, ndarray;
 //! tracked by autodiff or not), the flash kernels for attention on a GPU backend when chosen,

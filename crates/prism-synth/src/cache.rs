@@ -1,6 +1,6 @@
 //! The cache folder, and the config's default synthetic dataset kept in it.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use prism_core::progress::progress_bar;
 use prism_core::protocol::NUM_VIEWS;
@@ -43,8 +43,13 @@ const CACHE_LAYOUT: u32 = 2;
 /// The cache folder of the synthetic dataset `data` describes: a name made from every setting
 /// and the cache layout, so that different settings never share a folder.
 pub fn synthetic_dataset_dir(data: &SynthOptions) -> PathBuf {
+    synthetic_dataset_dir_in(&cache_dir(), data)
+}
+
+/// [`synthetic_dataset_dir`] under the cache folder `cache` instead of [`cache_dir`]'s.
+pub fn synthetic_dataset_dir_in(cache: &Path, data: &SynthOptions) -> PathBuf {
     let [r, g, b] = data.background;
-    cache_dir().join("datasets").join(format!(
+    cache.join("datasets").join(format!(
         "synth-v{CACHE_LAYOUT}-n{}-r{}-seed{}-test{}-ss{}-bg{r}-{g}-{b}",
         data.subjects, data.resolution, data.seed, data.test_fraction, data.supersample
     ))
@@ -60,7 +65,20 @@ pub fn ensure_synthetic_dataset(
     options: &SynthOptions,
     progress: bool,
 ) -> Result<PathBuf, DataError> {
-    let dir = synthetic_dataset_dir(options);
+    ensure_synthetic_dataset_in(&cache_dir(), options, progress)
+}
+
+/// [`ensure_synthetic_dataset`] under the cache folder `cache` instead of [`cache_dir`]'s (a
+/// process that works with several caches at once, such as a test binary).
+///
+/// # Errors
+/// Synthesis errors (naming the file).
+pub fn ensure_synthetic_dataset_in(
+    cache: &Path,
+    options: &SynthOptions,
+    progress: bool,
+) -> Result<PathBuf, DataError> {
+    let dir = synthetic_dataset_dir_in(cache, options);
     let bar = progress_bar(
         progress,
         (options.subjects * NUM_VIEWS) as u64,

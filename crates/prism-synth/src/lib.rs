@@ -12,7 +12,10 @@ pub mod scan;
 pub mod scan_dataset;
 pub mod synth;
 
-pub use cache::{CACHE_ENV, cache_dir, ensure_synthetic_dataset, synthetic_dataset_dir};
+pub use cache::{
+    CACHE_ENV, cache_dir, ensure_synthetic_dataset, ensure_synthetic_dataset_in,
+    synthetic_dataset_dir, synthetic_dataset_dir_in,
+};
 pub use material::{Material, Shading, Texture};
 pub use mesh::{Mesh, MeshError};
 pub use raster::{RenderError, RenderOptions, RenderOutput, render};

@@ -3,7 +3,7 @@
 //! steps on a tiny synthetic dataset, the table, its JSON and chart; a second run keeps the
 //! finished rows and adds a new one; a finished row at another budget is refused.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -2,7 +2,7 @@
 //! backend), with a tiny teacher trained for a few steps on a tiny synthetic dataset in a
 //! private cache folder.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -25,11 +25,11 @@ fn tiny_config() -> TrainingConfig {
 fn trained() -> &'static (PathBuf, PathBuf) {
     static RUN: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
     RUN.get_or_init(|| {
+        let _shared = common::device_shared();
         let cache = scratch("cache");
-        // SAFETY: set once, before any child process is spawned or the variable is read.
-        unsafe { std::env::set_var(prism_synth::CACHE_ENV, &cache) };
         let run = scratch("run");
-        let data = prism_synth::ensure_synthetic_dataset(&tiny_config().data, false).unwrap();
+        let data =
+            prism_synth::ensure_synthetic_dataset_in(&cache, &tiny_config().data, false).unwrap();
         let options = RunOptions::new(&run, data, prism_core::BackendKind::Ndarray);
         train(
             &tiny_config(),
@@ -551,6 +551,8 @@ fn another_config_and_a_missing_3dgs_head_are_one_clear_line() {
     no_gs.train.steps = 1;
     no_gs.train.checkpoint_every = 1;
     let no_gs_run = dir.join("no-gs");
+    let cache = &trained().0;
+    let shared = common::device_shared();
     train(
         &no_gs,
         &TeacherTask {
@@ -558,11 +560,12 @@ fn another_config_and_a_missing_3dgs_head_are_one_clear_line() {
         },
         &RunOptions::new(
             &no_gs_run,
-            prism_synth::ensure_synthetic_dataset(&no_gs.data, false).unwrap(),
+            prism_synth::ensure_synthetic_dataset_in(cache, &no_gs.data, false).unwrap(),
             prism_core::BackendKind::Ndarray,
         ),
     )
     .unwrap();
+    drop(shared);
     let ply = dir.join("person.ply");
     let err = failure(prism(&[
         "infer",

@@ -3,7 +3,7 @@
 //! --save-predictions`, then `prism train-teacher --init`, which trains the converted
 //! backbone at `lr_backbone` and the new geometry parts and heads at `lr_heads`.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::Output;

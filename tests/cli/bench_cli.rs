@@ -1,7 +1,7 @@
 //! End-to-end tests of `prism bench --config FILE --res ...` through the built binary (flex,
 //! the default backend), on the tiny config at tiny resolutions.
 
-mod common;
+use crate::common;
 
 use std::path::PathBuf;
 use std::process::Command;

@@ -3,23 +3,15 @@
 //! precision, and the memory a training step keeps, at two sequence lengths.
 //!
 //! Runs in the default build (the `wgpu` feature) on a machine with a Vulkan/Metal/DX12 adapter
-//! (Mesa's lavapipe is enough): `cargo test --release --test flash_attention`. With
+//! (Mesa's lavapipe is enough): `cargo test --release --test cli -- device::flash_attention`. With
 //! `PRISM_REQUIRE_WGPU` set, a missing adapter is a failure instead of a skip.
 #![cfg(feature = "wgpu")]
 
-mod common;
-
-use std::sync::{Mutex, MutexGuard};
+use crate::common;
 
 use burn::tensor::{DType, Device, Distribution, Tensor};
 use prism_kernels::device::{flash, supported};
 use prism_kernels::unfused;
-
-/// One test at a time: the memory test reads the device's pool, which the others would change.
-fn serial() -> MutexGuard<'static, ()> {
-    static LOCK: Mutex<()> = Mutex::new(());
-    LOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
-}
 
 fn values<const D: usize>(x: Tensor<D>) -> Vec<f32> {
     x.into_data()
@@ -48,15 +40,11 @@ fn assert_close(what: &str, got: &[f32], want: &[f32], floor: f32, rel: f32) {
     );
 }
 
-/// Shapes `[B, H, T, D]`: sequences shorter than a tile, not a multiple of the tiles or of the
-/// 64-row blocks, several head widths (the configs' 16, 32 and 64, and 128, the widest).
-const SHAPES: [[usize; 4]; 5] = [
-    [2, 3, 37, 16],
-    [1, 2, 70, 32],
-    [1, 1, 5, 64],
-    [1, 2, 130, 8],
-    [1, 1, 33, 128],
-];
+/// Shapes `[B, H, T, D]`: sequences shorter than a tile, not a multiple of the tiles, and
+/// longer than two 64-row blocks; head widths of the configs (16 and 64) and the widest (128).
+/// (Each head width compiles its own kernels, slow on a software adapter; the half-precision
+/// test covers width 32.)
+const SHAPES: [[usize; 4]; 3] = [[2, 3, 37, 16], [1, 2, 70, 64], [1, 1, 130, 128]];
 
 fn random(shape: [usize; 4], device: &Device) -> Tensor<4> {
     Tensor::random(shape, Distribution::Normal(0.0, 1.0), device)
@@ -82,7 +70,7 @@ fn forward_and_grads(
 #[test]
 #[cfg_attr(not(wgpu_adapter), ignore = "no wgpu adapter on this machine")]
 fn flash_attention_matches_unfused_attention_values_and_gradients() {
-    let _guard = serial();
+    let _guard = common::device_shared();
     let Some(device) = common::wgpu_device() else {
         return;
     };
@@ -110,7 +98,7 @@ fn flash_attention_matches_unfused_attention_values_and_gradients() {
 #[test]
 #[cfg_attr(not(wgpu_adapter), ignore = "no wgpu adapter on this machine")]
 fn flash_attention_takes_strided_inputs() {
-    let _guard = serial();
+    let _guard = common::device_shared();
     let Some(device) = common::wgpu_device() else {
         return;
     };
@@ -128,7 +116,7 @@ fn flash_attention_takes_strided_inputs() {
 #[test]
 #[cfg_attr(not(wgpu_adapter), ignore = "no wgpu adapter on this machine")]
 fn flash_gradients_match_finite_differences_of_its_forward_pass() {
-    let _guard = serial();
+    let _guard = common::device_shared();
     let Some(device) = common::wgpu_device() else {
         return;
     };
@@ -171,7 +159,7 @@ fn flash_gradients_match_finite_differences_of_its_forward_pass() {
 #[test]
 #[cfg_attr(not(wgpu_adapter), ignore = "no wgpu adapter on this machine")]
 fn half_precision_flash_attention_stays_close_to_f32() {
-    let _guard = serial();
+    let _guard = common::device_shared();
     let Some(device) = common::wgpu_device() else {
         return;
     };
@@ -235,7 +223,7 @@ fn step_memory(
 #[test]
 #[cfg_attr(not(wgpu_adapter), ignore = "no wgpu adapter on this machine")]
 fn training_memory_grows_linearly_in_tokens() {
-    let _guard = serial();
+    let _alone = common::device_alone();
     let Some(device) = common::wgpu_device() else {
         return;
     };

@@ -2,14 +2,14 @@
 //! tiny teacher is trained, then distilled into the progressive student (interrupted and
 //! resumed) and the paper's ablations, on a tiny synthetic dataset in a private cache folder.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
 use prism_core::BackendKind;
 use prism_model::AttentionKind;
-use prism_synth::ensure_synthetic_dataset;
+use prism_synth::ensure_synthetic_dataset_in;
 use prism_train::{Checkpoint, TrainingConfig, kinds_letters, load_model, read_metrics};
 
 use common::{prism_with_cache, scratch, stdout, success, tiny_at_32px};
@@ -62,10 +62,8 @@ fn latest(run: &Path) -> PathBuf {
 fn distilled_student_stays_near_its_teacher_and_beats_the_fully_linear_ablation() {
     let dir = scratch("e2e");
     let cache = dir.join("cache");
-    // SAFETY: set before any child process is spawned or the variable is read.
-    unsafe { std::env::set_var(prism_synth::CACHE_ENV, &cache) };
     let config = tiny_config();
-    ensure_synthetic_dataset(&config.data, false).unwrap();
+    ensure_synthetic_dataset_in(&cache, &config.data, false).unwrap();
     let config_path = dir.join("tiny.toml");
     std::fs::write(&config_path, config.to_toml()).unwrap();
     let cfg = config_path.to_str().unwrap();

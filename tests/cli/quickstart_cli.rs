@@ -3,7 +3,7 @@
 //! the plan's so the test takes about a minute on 2 cores; no GPU); then the framing
 //! `prism infer` gives photos is checked against the synthesised people.
 
-mod common;
+use crate::common;
 
 use prism_train::infer::{PERSON_CENTRE_Y, PERSON_HEIGHT_FRACTION};
 

@@ -1,6 +1,6 @@
 //! End-to-end tests of `prism metrics` through the built binary (ndarray backend).
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

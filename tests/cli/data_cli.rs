@@ -1,6 +1,6 @@
 //! End-to-end tests of `prism data synth` and `prism data check` through the built binary.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::Output;

@@ -7,7 +7,7 @@
 //! Chromium is found as `chromium` or `chromium-browser` on the PATH, or at `PRISM_CHROMIUM`;
 //! without it the test fails saying so (`.ci/run` installs it).
 
-mod common;
+use crate::common;
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
@@ -26,14 +26,13 @@ fn tiny_teacher(cache: &Path, dir: &Path) -> (PathBuf, PathBuf) {
     let mut config = tiny_at_32px();
     config.train.steps = 4;
     config.train.checkpoint_every = 4;
-    // SAFETY: set before any child process is spawned, in the only test of this binary.
-    unsafe { std::env::set_var(prism_synth::CACHE_ENV, cache) };
-    let data = prism_synth::ensure_synthetic_dataset(&config.data, false).unwrap();
+    let data = prism_synth::ensure_synthetic_dataset_in(cache, &config.data, false).unwrap();
     let run = dir.join("teacher");
     let options = RunOptions::new(&run, &data, prism_core::BackendKind::Ndarray);
     let task = TeacherTask {
         lpips_weights: None,
     };
+    let _shared = common::device_shared();
     train(&config, &task, &options).unwrap();
     (run, data)
 }

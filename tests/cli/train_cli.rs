@@ -1,7 +1,7 @@
 //! End-to-end tests of `prism train-teacher` through the built binary (ndarray backend), on the
 //! tiny config and a tiny synthetic dataset in a private cache folder.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};

@@ -1,7 +1,7 @@
 //! End-to-end tests of `prism data render` through the built binary, on scans written here in
 //! THuman's layout (`NNNN/NNNN.obj`, `material0.mtl`, `material0.jpeg`).
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::Output;

@@ -1,5 +1,5 @@
-//! Helpers shared by the command-line tests (each `tests/*.rs` is its own crate and declares
-//! `mod common;`: a file uses the helpers it needs).
+//! Helpers shared by the end-to-end tests (the modules of `tests/cli`: a module uses the
+//! helpers it needs).
 //!
 //! - runners: [`prism`] (the built binary with arguments, not yet run), [`prism_with_cache`]
 //!   (the same with a private cache folder), [`run`] (`prism ARGS` run at once);
@@ -9,20 +9,43 @@
 //! - files: [`scratch`] (a fresh folder per test), [`s`] (a path as an argument), [`cache`]
 //!   (this process's dataset cache, holding one synthetic dataset), [`copy_dir`];
 //! - devices: `wgpu_device` (with the `wgpu` feature: the adapter, or a skip, or a failure
-//!   under `PRISM_REQUIRE_WGPU`).
+//!   under `PRISM_REQUIRE_WGPU`), and [`device_shared`] / [`device_alone`], the wgpu device's
+//!   lock.
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
-use std::sync::OnceLock;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Mutex, OnceLock, RwLock, RwLockReadGuard, RwLockWriteGuard};
 
 use image::RgbImage;
+
+/// The models and kernels run in this process (not in a `prism` child): the tests that run
+/// them share it (their checks compare two paths on the same inputs), and a test that reads
+/// the wgpu device's memory pool or the process-wide count of geometry reads holds it alone
+/// ([`device_alone`]), since another test's tensors would change them.
+static DEVICE: RwLock<()> = RwLock::new(());
+
+/// Held by a test while it runs a model or kernel in this process: see [`DEVICE`].
+pub fn device_shared() -> RwLockReadGuard<'static, ()> {
+    DEVICE
+        .read()
+        .unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+/// Held by a test that reads the wgpu device's memory pool or the geometry reads: see
+/// [`DEVICE`].
+pub fn device_alone() -> RwLockWriteGuard<'static, ()> {
+    DEVICE
+        .write()
+        .unwrap_or_else(|poisoned| poisoned.into_inner())
+}
 
 /// `prism ARGS`: the binary this test crate was built with, not yet run (add arguments or
 /// environment, then run it with [`output`], [`success`] or [`failure`]).
 pub fn prism(args: &[&str]) -> Command {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_prism"));
-    cmd.args(args);
+    cmd.args(args).env(prism_synth::CACHE_ENV, cache_dir());
     cmd
 }
 
@@ -93,13 +116,16 @@ pub fn text(out: &Output) -> String {
     stdout(out) + &stderr(out)
 }
 
-/// A fresh, empty scratch folder for one test (`prism-CRATE-PID-TEST` in the system's temporary
+/// A fresh, empty scratch folder for one test (`prism-CRATE-PID-N-TEST` in the system's temporary
 /// folder), whatever an earlier run left there removed first.
 pub fn scratch(test: &str) -> PathBuf {
+    // Numbered: the tests of this binary run side by side, and two may pick the same name.
+    static NEXT: AtomicUsize = AtomicUsize::new(0);
     let dir = std::env::temp_dir().join(format!(
-        "prism-{}-{}-{test}",
+        "prism-{}-{}-{}-{test}",
         env!("CARGO_CRATE_NAME"),
-        std::process::id()
+        std::process::id(),
+        NEXT.fetch_add(1, Ordering::Relaxed)
     ));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
@@ -122,20 +148,24 @@ pub fn tiny_at_32px() -> prism_train::TrainingConfig {
     c
 }
 
-/// The cache folder of this test process (`$PRISM_CACHE_DIR` for the children it spawns),
-/// holding the synthetic dataset `data` describes, synthesised on the first call (before any
-/// child process needs it); later calls return the same folder.
-pub fn cache(data: &prism_data::SynthOptions) -> PathBuf {
+/// The cache folder shared by this test process's tests (the children of [`prism`] get it as
+/// `$PRISM_CACHE_DIR`; a test with a private cache uses [`prism_with_cache`]). The process's
+/// environment is never changed: its tests run side by side.
+pub fn cache_dir() -> PathBuf {
     static CACHE: OnceLock<PathBuf> = OnceLock::new();
-    CACHE
-        .get_or_init(|| {
-            let dir = scratch("cache");
-            // SAFETY: set once, before any child process is spawned or the variable is read.
-            unsafe { std::env::set_var(prism_synth::CACHE_ENV, &dir) };
-            prism_synth::ensure_synthetic_dataset(data, false).unwrap();
-            dir
-        })
-        .clone()
+    CACHE.get_or_init(|| scratch("cache")).clone()
+}
+
+/// [`cache_dir`], holding the synthetic dataset `data` describes (synthesised by the first
+/// test that asks for it, while the others wait).
+pub fn cache(data: &prism_data::SynthOptions) -> PathBuf {
+    static SYNTHESIS: Mutex<()> = Mutex::new(());
+    let dir = cache_dir();
+    let _one = SYNTHESIS
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner());
+    prism_synth::ensure_synthetic_dataset_in(&dir, data, false).unwrap();
+    dir
 }
 
 /// Copies the folder `from` to `to`, recursively.

@@ -7,7 +7,7 @@
 //! dataset, a wrong token and malformed or unreachable devices are refused with one clear
 //! line, and a server that cannot read its copy of the dataset is named with the file.
 
-mod common;
+use crate::common;
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -33,7 +33,10 @@ fn dataset_copy(dir: &Path, edit: impl FnOnce(&Path)) -> PathBuf {
     let config = tiny_config(1);
     cache();
     let copy = dir.join("server-data");
-    copy_dir(&prism_synth::synthetic_dataset_dir(&config.data), &copy);
+    copy_dir(
+        &prism_synth::synthetic_dataset_dir_in(&cache(), &config.data),
+        &copy,
+    );
     edit(&copy);
     copy
 }
@@ -439,7 +442,10 @@ fn refusals_are_one_clear_line() {
     assert!(err.contains("loads another dataset"), "{err}");
     // A stale copy: the same dataset.json, one file of another size.
     let stale = dir.join("stale-data");
-    copy_dir(&prism_synth::synthetic_dataset_dir(&config_data()), &stale);
+    copy_dir(
+        &prism_synth::synthetic_dataset_dir_in(&cache(), &config_data()),
+        &stale,
+    );
     let file = first_file_beside_the_metadata(&stale);
     let bytes = std::fs::read(&file).unwrap();
     std::fs::write(&file, &bytes[..bytes.len() - 1]).unwrap();

@@ -1,6 +1,6 @@
 //! End-to-end tests of `prism body` through the built binary.
 
-mod common;
+use crate::common;
 
 use common::{failure, prism, run, s, scratch, stdout, success};
 
