@@ -25,7 +25,6 @@ fn tiny_config() -> TrainingConfig {
 fn trained() -> &'static (PathBuf, PathBuf) {
     static RUN: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
     RUN.get_or_init(|| {
-        let _shared = common::device_shared();
         let cache = scratch("cache");
         let run = scratch("run");
         let data =
@@ -552,7 +551,6 @@ fn another_config_and_a_missing_3dgs_head_are_one_clear_line() {
     no_gs.train.checkpoint_every = 1;
     let no_gs_run = dir.join("no-gs");
     let cache = &trained().0;
-    let shared = common::device_shared();
     train(
         &no_gs,
         &TeacherTask {
@@ -565,7 +563,6 @@ fn another_config_and_a_missing_3dgs_head_are_one_clear_line() {
         ),
     )
     .unwrap();
-    drop(shared);
     let ply = dir.join("person.ply");
     let err = failure(prism(&[
         "infer",

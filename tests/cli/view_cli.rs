@@ -32,7 +32,6 @@ fn tiny_teacher(cache: &Path, dir: &Path) -> (PathBuf, PathBuf) {
     let task = TeacherTask {
         lpips_weights: None,
     };
-    let _shared = common::device_shared();
     train(&config, &task, &options).unwrap();
     (run, data)
 }

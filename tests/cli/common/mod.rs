@@ -20,13 +20,13 @@ use std::sync::{Mutex, OnceLock, RwLock, RwLockReadGuard, RwLockWriteGuard};
 
 use image::RgbImage;
 
-/// The models and kernels run in this process (not in a `prism` child): the tests that run
-/// them share it (their checks compare two paths on the same inputs), and a test that reads
-/// the wgpu device's memory pool or the process-wide count of geometry reads holds it alone
-/// ([`device_alone`]), since another test's tensors would change them.
+/// The wgpu device of this process: the tests that run tensors on it share it (their checks
+/// compare two paths on the same inputs), and a test that reads the device's memory pool or
+/// the process-wide count of geometry reads holds it alone ([`device_alone`]), since another
+/// test's tensors would change them.
 static DEVICE: RwLock<()> = RwLock::new(());
 
-/// Held by a test while it runs a model or kernel in this process: see [`DEVICE`].
+/// Held by a test while it runs tensors on the wgpu device: see [`DEVICE`].
 pub fn device_shared() -> RwLockReadGuard<'static, ()> {
     DEVICE
         .read()

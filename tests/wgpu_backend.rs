@@ -10,7 +10,11 @@
 //! unless `PRISM_REQUIRE_WGPU=1` (set by CI), which turns the missing adapter into a failure.
 #![cfg(feature = "wgpu")]
 
-use crate::common;
+// Its own test binary, apart from tests/cli: the geometry-read counter is process-wide, and
+// tests/cli's tests, which run side by side, train in-process on the CPU backends (whose host
+// path counts).
+#[path = "cli/common/mod.rs"]
+mod common;
 
 use std::path::Path;
 
@@ -74,7 +78,7 @@ fn relative_error(a: &[f32], b: &[f32]) -> f32 {
 #[test]
 #[cfg_attr(not(wgpu_adapter), ignore = "no wgpu adapter on this machine")]
 fn tiny_forward_on_wgpu_matches_flex() {
-    let _shared = common::device_shared();
+    let _alone = common::device_alone();
     let Some(wgpu) = common::wgpu_device() else {
         return;
     };
