@@ -3,8 +3,8 @@
 //! precision, and the memory a training step keeps, at two sequence lengths.
 //!
 //! Runs in the default build (the `wgpu` feature) on a machine with a Vulkan/Metal/DX12 adapter
-//! (Mesa's lavapipe is enough): `cargo test --release --test cli -- device::flash_attention`. With
-//! `PRISM_REQUIRE_WGPU` set, a missing adapter is a failure instead of a skip.
+//! (Mesa's lavapipe is enough): `cargo test --release --test cli -- device::flash_attention`.
+//! With `PRISM_REQUIRE_WGPU` set, a missing adapter is a failure instead of a skip.
 #![cfg(feature = "wgpu")]
 
 use crate::common;
