@@ -6,6 +6,7 @@
 //! on a single-threaded software GPU) run side by side, and the stack is linked once. Run one
 //! module with `cargo test --release --test cli -- learning_cli`.
 
+mod browser;
 mod common;
 
 mod ablate_cli;
