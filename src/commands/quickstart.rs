@@ -32,9 +32,14 @@ pub struct QuickstartArgs {
     #[arg(long)]
     fast: bool,
     /// Folder of the two runs and their evaluations [default: runs/quickstart or
-    /// runs/quickstart-fast]; replaced if it holds a previous quickstart.
+    /// runs/quickstart-fast]; replaced if it holds a previous quickstart (see --resume).
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
+    /// Continue the quick start an interruption left in --out instead of training again: each
+    /// run goes on from its last checkpoint and a finished one is kept (a run made with another
+    /// config or plan is refused); both are evaluated again. Train seconds count this call.
+    #[arg(long)]
+    resume: bool,
     /// Teacher training steps instead of the plan's.
     #[arg(long, value_name = "N")]
     teacher_steps: Option<usize>,
@@ -107,9 +112,12 @@ impl QuickstartArgs {
             plan.eval_views,
             out.display()
         );
-        // A rerun trains again (the library's quickstart would keep finished runs).
-        for run in [TEACHER_RUN, STUDENT_RUN] {
-            remove_run(&out.join(run))?;
+        // A rerun trains again unless asked to resume (the library's quickstart continues what
+        // it finds).
+        if !self.resume {
+            for run in [TEACHER_RUN, STUDENT_RUN] {
+                remove_run(&out.join(run))?;
+            }
         }
         let report = quickstart(&plan, &options, &distill_student)
             .with_context(|| format!("quickstart into {}", out.display()))?;

@@ -1,7 +1,8 @@
 //! End-to-end test of `prism ablate` through the built binary (ndarray backend): two rows (the
 //! teacher and the progressive student distilled from it) of a 32 px tiny config trained a few
 //! steps on a tiny synthetic dataset, the table, its JSON and chart; a second run keeps the
-//! finished rows and adds a new one; a finished row at another budget is refused.
+//! finished rows (a student run whose row file was lost is scored again) and adds a new one; a
+//! finished row at another budget is refused.
 
 use crate::common;
 
@@ -103,7 +104,12 @@ fn ablate_trains_scores_and_keeps_finished_rows() {
     assert_eq!((chart.width(), chart.height()), (1280, 1200));
 
     // Again with another row: the two finished rows are kept as they are, the new one trained.
+    // The student's row file is removed first, as when a job is killed while it scores the row:
+    // its finished run is kept (not refused as another config's, not trained again) and scored
+    // again.
     let teacher_metrics = std::fs::read(out.join("teacher/metrics.jsonl")).unwrap();
+    let student_metrics = std::fs::read(out.join("progressive/metrics.jsonl")).unwrap();
+    std::fs::remove_file(out.join("progressive/row.json")).unwrap();
     success(ablate(
         &cache,
         &config_path,
@@ -114,10 +120,15 @@ fn ablate_trains_scores_and_keeps_finished_rows() {
     let again = read_ablation(&out);
     let names: Vec<&str> = again.rows.iter().map(|r| r.row.as_str()).collect();
     assert_eq!(names, ["teacher", "progressive", "no_points"]);
-    assert_eq!(again.rows[..2], ablation.rows[..]);
+    assert_eq!(again.rows[0], ablation.rows[0]);
+    assert_eq!(again.rows[1].model, ablation.rows[1].model);
     assert_eq!(
         std::fs::read(out.join("teacher/metrics.jsonl")).unwrap(),
         teacher_metrics
+    );
+    assert_eq!(
+        std::fs::read(out.join("progressive/metrics.jsonl")).unwrap(),
+        student_metrics
     );
     assert!(again.rows[2].gs.is_some(), "no_points keeps its 3DGS head");
 

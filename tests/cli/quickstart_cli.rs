@@ -1,34 +1,36 @@
 //! `prism quickstart --fast` end to end through the built binary: dataset, teacher, student,
 //! both evaluations, the table and the phase timings (flex backend, fewer steps and views than
-//! the plan's so the test takes about a minute on 2 cores; no GPU); then the framing
-//! `prism infer` gives photos is checked against the synthesised people.
+//! the plan's so the test takes about a minute on 2 cores; no GPU) and `--resume` on the
+//! finished runs; then the framing `prism infer` gives photos is checked against the
+//! synthesised people.
 
 use crate::common;
 
 use prism_train::infer::{PERSON_CENTRE_Y, PERSON_HEIGHT_FRACTION};
 
-use common::{prism_with_cache, scratch, stdout, success};
+use common::{output, prism_with_cache, scratch, stderr, stdout, success};
 
 #[test]
 fn quickstart_fast_runs_end_to_end() {
     let root = scratch("fast");
     let out_dir = root.join("out");
-    let mut quickstart = prism_with_cache(
-        &root.join("cache"),
-        &["quickstart", "--fast", "--quiet", "--backend", "flex"],
-    );
-    quickstart
-        .args([
-            "--teacher-steps",
-            "4",
-            "--student-steps",
-            "4",
-            "--eval-views",
-            "3",
-        ])
-        .arg("--out")
-        .arg(&out_dir);
-    let out = success(quickstart);
+    // The quick start of 4 + 4 steps into `out_dir`, with `extra` arguments.
+    let quickstart = |extra: &[&str]| {
+        let mut command = prism_with_cache(
+            &root.join("cache"),
+            &["quickstart", "--fast", "--quiet", "--backend", "flex"],
+        );
+        command
+            .args(["--teacher-steps", "4", "--eval-views", "3"])
+            .arg("--out")
+            .arg(&out_dir)
+            .args(extra);
+        if !extra.contains(&"--student-steps") {
+            command.args(["--student-steps", "4"]);
+        }
+        command
+    };
+    let out = success(quickstart(&[]));
     let stdout = stdout(&out);
     assert!(stdout.contains("| model | steps | train (s) | PSNR (dB) | SSIM | LPIPS | FPS |"));
     for model in ["teacher", "student"] {
@@ -92,6 +94,36 @@ fn quickstart_fast_runs_end_to_end() {
     assert_eq!(attention.matches("linear").count(), 4, "{attention}");
     let metrics = std::fs::read_to_string(out_dir.join("student/metrics.jsonl")).unwrap();
     assert!(metrics.contains("\"distill\""), "no L_distill logged");
+
+    // `--resume` keeps the finished runs (nothing trained again, the same scores), and refuses
+    // a student run made with another plan: its distillation schedule compressed to 4 steps
+    // switches a block every step, one compressed to 8 every 2.
+    let logs = || {
+        ["teacher", "student"].map(|model| {
+            std::fs::read_to_string(out_dir.join(model).join("metrics.jsonl")).unwrap()
+        })
+    };
+    let trained = logs();
+    let resumed = common::stdout(&success(quickstart(&["--resume"])));
+    assert_eq!(logs(), trained, "--resume trained a finished run again");
+    assert_eq!(
+        row_values(&resumed, "| copy source (view 0) | - | - |"),
+        copy
+    );
+    let again: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out_dir.join("teacher/evaluation/evaluation.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(again["psnr"], teacher_eval["psnr"]);
+    let refused = output(quickstart(&["--resume", "--student-steps", "8"]));
+    assert_eq!(refused.status.code(), Some(1), "{refused:?}");
+    let said = stderr(&refused);
+    let error = said.trim_end().lines().last().unwrap_or_default();
+    assert!(
+        error.starts_with("error: ") && error.contains("distill") && !said.contains("panicked"),
+        "{said}"
+    );
+    assert_eq!(logs(), trained, "a refused resume changed a run");
 
     // `prism infer` frames photos like these training people: their frontal views' person
     // boxes average PERSON_HEIGHT_FRACTION of the height, centred PERSON_CENTRE_Y down.

@@ -23,6 +23,7 @@ use crate::config::TrainingConfig;
 use crate::error::{Result, TrainError};
 use crate::evaluate::{EvaluateOptions, Evaluation, evaluate_checkpoint};
 use crate::report::EvaluationFiles;
+use crate::student::student_config;
 use crate::teacher::TeacherTask;
 use crate::trainer::{RunOptions, RunSummary, train};
 
@@ -126,7 +127,8 @@ pub struct PipelineOptions {
 }
 
 /// The options of the run of `steps` steps with `config` in `dir` that continues what a killed
-/// job left there: `None` when `dir` holds this config's finished run (a checkpoint at `steps`),
+/// job left there (`config` as the run stores it: for a distillation, [`student_config`] of the
+/// job's): `None` when `dir` holds this config's finished run (a checkpoint at `steps`),
 /// a resuming run when it holds an earlier checkpoint (the trainer checks its config), else a
 /// fresh run (the folder cleared of anything written before a first checkpoint). Long jobs made
 /// of runs (an ablation's rows, the quick starts of a budget curve) train each run once however
@@ -267,7 +269,7 @@ pub struct QuickstartReport {
 /// A run a killed quickstart left in `options.out` continues from its last checkpoint and a
 /// finished one is kept, so that a long one (the budget curve's 16x) is never trained twice;
 /// the student starts over when its teacher trained in this call. `prism quickstart` clears
-/// its run folders first: a rerun there trains again.
+/// its run folders first (a rerun there trains again) unless given `--resume`.
 ///
 /// # Errors
 /// Any error of the dataset, training or evaluation.
@@ -329,11 +331,12 @@ pub fn quickstart(
         // Whatever student is there was distilled from another teacher.
         remove_run(&student_dir)?;
     }
-    let mut student_config = plan.config.clone();
-    compress_schedule(&mut student_config, plan.student_steps);
+    let mut job_config = plan.config.clone();
+    compress_schedule(&mut job_config, plan.student_steps);
     let (t0, before) = (Instant::now(), phase_totals());
-    if let Some(run) = continue_run(&student_dir, plan.student_steps, &student_config, options)? {
-        student_job(&student_config, &teacher_dir, &run)?;
+    let stored = student_config(&job_config);
+    if let Some(run) = continue_run(&student_dir, plan.student_steps, &stored, options)? {
+        student_job(&job_config, &teacher_dir, &run)?;
     }
     let student = evaluate_run(&student_dir, plan.student_steps, t0, before)?;
     Ok(QuickstartReport {

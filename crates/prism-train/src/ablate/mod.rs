@@ -32,7 +32,7 @@ use crate::images::save_png;
 use crate::log::{METRICS_FILE, read_metrics};
 use crate::provenance::{Provenance, dataset_digest_of};
 use crate::quickstart::{PipelineOptions, compress_schedule, continue_run};
-use crate::student::distill_student;
+use crate::student::{distill_student, student_config};
 use crate::teacher::TeacherTask;
 use crate::trainer::train;
 
@@ -236,7 +236,12 @@ fn run_row(
         }
         return Ok(done);
     }
-    if let Some(run) = continue_run(&dir, steps, &config, options)? {
+    let stored = if row.is_student() {
+        student_config(&config)
+    } else {
+        config.clone()
+    };
+    if let Some(run) = continue_run(&dir, steps, &stored, options)? {
         if row.is_student() {
             distill_student(&config, teacher, &run)?;
         } else {
