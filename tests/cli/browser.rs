@@ -1,6 +1,7 @@
 //! A headless Chromium driven over the DevTools protocol (one WebSocket, JSON messages): what
 //! the viewer's browser test and its latency benchmark (`benches/view.rs`, which includes this
-//! file) use to load a page, press keys, drag the mouse and read the page's state.
+//! file) use to start `prism view`, load its page, press keys, drag the mouse and read the
+//! page's state.
 //!
 //! Chromium is found as `chromium` or `chromium-browser` on the PATH, or at `PRISM_CHROMIUM`.
 
@@ -14,6 +15,26 @@ use base64::Engine as _;
 use serde_json::{Value, json};
 use tungstenite::stream::MaybeTlsStream;
 use tungstenite::{Message, WebSocket};
+
+/// Starts `prism view` (`command`, with its arguments, listening on port 0) and returns it with
+/// the address it announced on its first line of stdout.
+pub fn start_viewer(command: &mut Command) -> (Child, String) {
+    let mut child = command
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("starting prism view");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let address = line
+        .split("http://")
+        .nth(1)
+        .and_then(|rest| rest.split('/').next())
+        .unwrap_or_else(|| panic!("prism view announced no address: {line:?}"))
+        .to_string();
+    (child, address)
+}
 
 /// The Chromium of this machine: `PRISM_CHROMIUM`, else `chromium` or `chromium-browser`
 /// on the PATH.

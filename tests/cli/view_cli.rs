@@ -11,7 +11,7 @@
 use crate::browser;
 use crate::common;
 
-use std::io::{BufRead, BufReader, Read, Write};
+use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -40,35 +40,23 @@ fn tiny_teacher(cache: &Path, dir: &Path) -> (PathBuf, PathBuf) {
 
 /// `prism view` serving `run` on a free loopback port, and the address it announced.
 fn start_view(cache: &Path, run: &Path, data: &Path) -> (Child, String) {
-    let mut child = prism_with_cache(
-        cache,
-        &[
-            "view",
-            "--checkpoint",
-            s(run),
-            "--data",
-            s(data),
-            "--listen",
-            "127.0.0.1:0",
-            "--backend",
-            "ndarray",
-        ],
+    browser::start_viewer(
+        prism_with_cache(
+            cache,
+            &[
+                "view",
+                "--checkpoint",
+                s(run),
+                "--data",
+                s(data),
+                "--listen",
+                "127.0.0.1:0",
+                "--backend",
+                "ndarray",
+            ],
+        )
+        .stderr(Stdio::piped()),
     )
-    .stdout(Stdio::piped())
-    .stderr(Stdio::piped())
-    .spawn()
-    .unwrap();
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    let address = line
-        .split("http://")
-        .nth(1)
-        .and_then(|rest| rest.split('/').next())
-        .unwrap_or_else(|| panic!("no address announced: {line:?}"))
-        .to_string();
-    (child, address)
 }
 
 /// One HTTP/1.1 request to `address`: the status and the body.
