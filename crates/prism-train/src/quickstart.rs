@@ -108,7 +108,9 @@ pub fn compress_schedule(config: &mut TrainingConfig, steps: usize) {
 }
 
 /// The student job: distils a student from the teacher run `teacher` with `config`, into
-/// `options.out` (`options.steps` set). `prism distill-student`'s library call.
+/// `options.out` (`options.steps` set), training with [`student_config`] of `config` as
+/// [`crate::distill_student`] does (a finished run is recognised by that config).
+/// `prism distill-student`'s library call.
 pub type StudentJob<'a> = &'a dyn Fn(&TrainingConfig, &Path, &RunOptions) -> Result<RunSummary>;
 
 /// How a pipeline of runs (the quick start, an ablation) trains and evaluates.

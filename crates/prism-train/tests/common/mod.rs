@@ -183,8 +183,9 @@ pub unsafe fn shrunken_quickstart(
     (plan, options)
 }
 
-/// A cheap student job for pipeline tests: the teacher's objective, from the teacher's weights
-/// (`prism distill-student` is the real one); a resumed run continues its own checkpoint.
+/// A cheap student job for pipeline tests: the teacher's objective, from the teacher's weights,
+/// with the distillation's config ([`prism_train::student_config`], what a student run stores;
+/// `prism distill-student` is the real job); a resumed run continues its own checkpoint.
 pub fn fine_tune_student(
     config: &TrainingConfig,
     teacher: &Path,
@@ -194,7 +195,11 @@ pub fn fine_tune_student(
         init: (!run.resume).then(|| teacher.to_path_buf()),
         ..run.clone()
     };
-    prism_train::train(config, &prism_train::TeacherTask::default(), &run)
+    prism_train::train(
+        &prism_train::student_config(config),
+        &prism_train::TeacherTask::default(),
+        &run,
+    )
 }
 
 /// One dataset for every test of a test binary (each is its own process): `subjects` subjects
