@@ -137,10 +137,10 @@ fn frames(browser: &mut Browser, page: &str) -> Vec<(f64, f64)> {
 }
 
 fn median(values: &mut [f64]) -> f64 {
-    values.sort_by(f64::total_cmp);
-    values[values.len() / 2]
+    quantile(values, 0.5)
 }
 
+/// The value at fraction `q` of the sorted `values` (the nearest rank).
 fn quantile(values: &mut [f64], q: f64) -> f64 {
     values.sort_by(f64::total_cmp);
     values[((values.len() - 1) as f64 * q).round() as usize]
