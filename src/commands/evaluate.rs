@@ -18,7 +18,8 @@ use prism_train::{EvaluateOptions, evaluate_checkpoint};
 /// (10-degree bins of |yaw| and |pitch|); the forward pass of one (source, target) pair is
 /// timed (FPS, warm-up and data loading excluded). The same scores are given for the "copy the
 /// source view" baseline (`copy_source`: view 0 as the prediction of every target view) and, for
-/// a model with a 3DGS head, for its render I_gs (`gs`). Writes OUT/evaluation.json,
+/// a model with a 3DGS head, for its render I_gs (`gs`); each gets a speckle score (`speckle`:
+/// its mean absolute Laplacian over the truth's where the truth is smooth). Writes OUT/evaluation.json,
 /// OUT/report.md, a PNG grid per subject (source | prediction | ground truth | error map) and
 /// the run's training curves (OUT/training-curves.png).
 ///
@@ -63,6 +64,11 @@ pub struct EvaluateArgs {
         requires = "checkpoint"
     )]
     precision: Precision,
+    /// With --checkpoint: also draw the 3DGS head's Gaussians with one property at a time
+    /// (depth, colour, opacity, scale) taken from the dataset's truth, and score each (a
+    /// diagnostic: the "Oracle swaps" table of the report, `oracle` in the JSON).
+    #[arg(long, requires = "checkpoint")]
+    oracle: bool,
     #[command(flatten)]
     job: JobArgs,
 }
@@ -91,6 +97,7 @@ impl EvaluateArgs {
             progress: !self.job.quiet,
             save_predictions: self.save_predictions.clone(),
             precision: self.precision,
+            oracle: self.oracle,
             ..EvaluateOptions::default()
         };
         let (e, files) = evaluate_checkpoint(
@@ -129,6 +136,15 @@ impl EvaluateArgs {
         println!(
             "  copy source (view 0): PSNR {:.3} dB  SSIM {:.4}  LPIPS {:.4}",
             c.psnr, c.ssim, c.lpips
+        );
+        let s = &e.speckle;
+        println!(
+            "  speckle (1 = as smooth as the truth): model {:.2}{}  copy source {:.2}  \
+             true-depth warp {:.2}",
+            s.model,
+            s.gs.map(|g| format!("  I_gs {g:.2}")).unwrap_or_default(),
+            s.copy_source,
+            s.true_depth_warp
         );
         if let Some(dir) = &self.save_predictions {
             println!("predictions: {}", dir.display());

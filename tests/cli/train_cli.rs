@@ -10,7 +10,9 @@ use std::time::{Duration, Instant};
 use prism_core::BackendKind;
 use prism_train::{Checkpoint, TrainingConfig, list_checkpoints, parameter_values, read_metrics};
 
-use common::{failure, output, prism_with_cache, scratch, stderr, stdout, success, tiny_at_32px};
+use common::{
+    failure, output, prism_with_cache, s, scratch, stderr, stdout, success, tiny_at_32px,
+};
 
 /// The cache folder of this test process, holding the tiny synthetic dataset.
 fn cache() -> PathBuf {
@@ -94,8 +96,22 @@ fn a_killed_run_leaves_a_loadable_checkpoint_and_resumes_exactly() {
         stdout.contains(&format!("trained steps {step}..60")),
         "{stdout}"
     );
+    // The uninterrupted run, without --quiet on a pipe: its progress comes as plain lines
+    // (one per step here, PRISM_PROGRESS_SECONDS=0) with the stage, step / total, loss and
+    // time left.
     let straight = dir.join("straight");
-    success(prism(&config, &straight, &[]));
+    let mut cmd = prism_with_cache(&cache(), &["train-teacher", "--config", s(&config)]);
+    cmd.args(["--out", s(&straight), "--backend", "ndarray"])
+        .env(prism_core::progress::PLAIN_LINE_SECONDS_VAR, "0");
+    let progress = stderr(&success(cmd));
+    let lines: Vec<&str> = progress
+        .lines()
+        .filter(|l| l.starts_with("teacher ") && l.contains(" loss "))
+        .collect();
+    assert!(lines.len() >= 30, "{progress}");
+    assert!(lines.iter().any(|l| l.contains("60/60 [")), "{progress}");
+    assert!(lines.iter().all(|l| l.contains(" < ")), "{progress}");
+    assert!(!progress.contains('\u{1b}'), "no terminal escapes: {progress}");
     assert_eq!(weights(&killed), weights(&straight));
     let steps: Vec<u64> = read_metrics(&killed.join("metrics.jsonl"))
         .unwrap()

@@ -7,6 +7,7 @@
 //!   per image. [`score_images`] is the one scoring pipeline (all three per image, and
 //!   [`ImageScores::mean`]) of validation, evaluation and [`score_paths`] (image files or
 //!   folders, `prism metrics`); [`ScoreTable`] is the one formatter of their tables.
+//!   [`speckle_sums`] scores pixel-level noise where the truth is smooth (`prism evaluate`).
 //!
 //! LPIPS uses the real v0.1 AlexNet weights committed at `data/lpips_alex.safetensors`
 //! (found by [`find_lpips_weights`]); nothing is ever downloaded.
@@ -22,6 +23,7 @@ pub mod psnr;
 pub mod region;
 pub mod scores;
 pub mod smplx;
+pub mod speckle;
 pub mod ssim;
 pub mod table;
 pub mod weights;
@@ -40,6 +42,7 @@ pub use psnr::psnr;
 pub use region::{psnr_region_filled, score_region};
 pub use scores::{ImageScores, score_images};
 pub use smplx::{SmplxParams, smplx_loss};
+pub use speckle::{SMOOTH_LAPLACIAN, SpeckleSums, laplacian_magnitude, speckle_sums};
 pub use ssim::{SSIM_WINDOW, ssim, ssim_map};
 pub use table::{NO_VALUE, SCORE_COLUMNS, ScoreTable, score_cells};
 pub use weights::{LPIPS_WEIGHTS_ENV, LPIPS_WEIGHTS_FILE, find_lpips_weights};

@@ -231,6 +231,12 @@ pub struct PrismConfig {
     /// (embedded, then one hidden layer; see `heads/nvs.rs`). Needs `nvs_output = "residual"`.
     #[config(default = false)]
     pub nvs_sees_render: bool,
+    /// The NVS decoder's and the 3DGS head's output resolution: 0 (the paper) gives every
+    /// pixel of a patch its own value (`Linear(d, C p^2)` and an unpatchify); `f`, a divisor
+    /// of `patch_size`, gives `f x f` values per token, upsampled bilinearly to the pixels, so
+    /// that the corrections and Gaussians vary smoothly instead of pixel by pixel.
+    #[config(default = 0)]
+    pub head_upsample: usize,
 }
 
 impl PrismConfig {
@@ -333,6 +339,15 @@ impl PrismConfig {
             return fail(
                 "model.gs_scale",
                 format!("{} is not strictly between 0.1 and 10", self.gs_scale),
+            );
+        }
+        if self.head_upsample > 0 && !self.patch_size.is_multiple_of(self.head_upsample) {
+            return fail(
+                "model.head_upsample",
+                format!(
+                    "{} does not divide patch_size {} (0 for a value per pixel)",
+                    self.head_upsample, self.patch_size
+                ),
             );
         }
         if self.gs_depth == GsDepth::Points && !self.point_branch {
@@ -503,6 +518,7 @@ gs_scale = 1.0
 gs_keying = false
 nvs_output = "direct"
 nvs_sees_render = false
+head_upsample = 0
 
 [distill]
 mode = "progressive"

@@ -106,6 +106,7 @@ impl PrismConfig {
                 .with_norm_eps(self.norm_eps)
                 .with_output(self.nvs_output)
                 .with_sees_render(self.nvs_sees_render)
+                .with_upsample(self.head_upsample)
                 .init(device),
             gs_head: self.gs_head.then(|| {
                 GaussianHeadConfig::new(self.width, self.patch_size, self.depth_prior)
@@ -115,6 +116,7 @@ impl PrismConfig {
                     .with_depth(self.gs_depth)
                     .with_scale(self.gs_scale)
                     .with_keying(self.gs_keying)
+                    .with_upsample(self.head_upsample)
                     .init(device)
             }),
         })
@@ -880,13 +882,14 @@ mod tests {
         let options = PrismConfig {
             point_colours: true,
             nvs_sees_render: true,
+            head_upsample: 2,
             ..shipped("tiny")
         };
         let configs = [
             ("tiny", config("tiny")),
             ("small", config("small")),
             (
-                "tiny with coloured points and a decoder seeing I_gs",
+                "tiny with coloured points, a decoder seeing I_gs and smooth heads",
                 options,
             ),
         ];
@@ -920,6 +923,10 @@ mod tests {
                 model.smplx_branch.as_ref().unwrap().triplane.num_params(),
                 "{name}"
             );
+            let out = forward(&model, &inputs(1, 16, 16, &device), &[]);
+            assert_eq!(out.image.dims(), [1, 3, 16, 16], "{name}");
+            let gs = out.gaussians.expect("a 3DGS head");
+            assert_eq!(gs.gaussians.means.dims(), [1, 256, 3], "{name}");
         }
     }
 

@@ -10,6 +10,12 @@
 //! head, of its render `I_gs`. Each method is also scored in the disoccluded region of every
 //! view (the target's foreground that the source does not see, where a warp has nothing to
 //! copy; `prism_data::Sample::disoccluded_region`).
+//!
+//! Every method also gets a speckle score ([`prism_losses::speckle`]): its mean absolute
+//! Laplacian over the truth's where the truth is smooth, on the target's foreground. The
+//! true-depth warp's footprint is chosen on training subjects ([`pick_warp_footprint`]), never
+//! on the views it is scored on. With [`EvaluateOptions::oracle`], the 3DGS head's Gaussians are
+//! also drawn with one property at a time taken from the truth ([`crate::oracle`]).
 
 use std::collections::BTreeMap;
 use std::fs;
@@ -24,7 +30,10 @@ use prism_core::protocol::EVAL_TARGETS;
 use prism_data::{
     DatasetReader, PrismBatcher, RegionMethod, Sample, SampleDataset, SplitKind, TargetSelection,
 };
-use prism_losses::{ImageScores, Lpips, psnr_region_filled, score_images, score_region};
+use prism_losses::{
+    ImageScores, Lpips, SpeckleSums, psnr, psnr_region_filled, score_images, score_region,
+    speckle_sums,
+};
 use prism_model::{Precision, Prism};
 use serde::Serialize;
 
@@ -32,11 +41,13 @@ use crate::checkpoint::{CHECKPOINTS_DIR, load_model};
 use crate::error::{Result, TrainError};
 use crate::images::{error_map, save_png, tile};
 use crate::log::METRICS_FILE;
+use crate::oracle::{OracleBatch, Swap, draw};
 use crate::predict::{Pairs, forward_pairs, inference_model, synthesise};
 use crate::report::{EvaluationFiles, write_evaluation};
 use crate::tally::{DisoccludedScores, MeanScores, MethodScores, PerAngle, Tally};
 use crate::validate::validation_views;
 use crate::warp::{WARP_FOOTPRINTS, true_depth_warp};
+use prism_model::GsColour;
 use prism_core::images::HostImages;
 
 /// How an evaluation runs.
@@ -59,6 +70,9 @@ pub struct EvaluateOptions {
     /// The precision of the transformer blocks (their weights stored in it, see
     /// [`Prism::with_block_precision`]); the rest of the model computes in f32.
     pub precision: Precision,
+    /// Also score the oracle swaps of [`crate::oracle`] (a diagnostic; needs a 3DGS head with
+    /// colour Gaussians and a dataset with point maps).
+    pub oracle: bool,
 }
 
 impl Default for EvaluateOptions {
@@ -71,6 +85,7 @@ impl Default for EvaluateOptions {
             progress: false,
             save_predictions: None,
             precision: Precision::F32,
+            oracle: false,
         }
     }
 }
@@ -110,12 +125,18 @@ pub struct Evaluation {
     pub copy_source: MethodScores,
     /// The true-depth warp baseline on the same views (`true_depth_warp` in the JSON): the
     /// source's pixels as Gaussians at the dataset's own 3D points ([`crate::warp`]), at the
-    /// footprint of [`WARP_FOOTPRINTS`] with the best mean PSNR.
+    /// footprint of [`WARP_FOOTPRINTS`] with the best mean PSNR on training subjects.
     pub true_depth_warp: MethodScores,
     /// The footprint (source pixels) of the reported true-depth warp.
     pub true_depth_warp_footprint: f32,
-    /// Every footprint the warp was rendered at, with its mean PSNR (dB).
+    /// Every footprint the warp was rendered at on the training subjects that chose it
+    /// ([`pick_warp_footprint`]), with its mean PSNR (dB) there.
     pub true_depth_warp_sweep: Vec<FootprintPsnr>,
+    /// The speckle score of each method ([`prism_losses::speckle`]).
+    pub speckle: SpeckleScores,
+    /// The oracle swaps' scores, when asked for ([`EvaluateOptions::oracle`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub oracle: Option<Vec<OracleScores>>,
     /// The 3DGS head's render `I_gs` (over the background) on the same views, from a forward
     /// pass with the head; `None` (absent from the JSON) for a model without a 3DGS head.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -131,6 +152,44 @@ impl Evaluation {
             lpips: self.lpips,
         }
     }
+}
+
+/// Each method's speckle score: its mean absolute Laplacian over the truth's, on the pixels
+/// where the truth is smooth (inside the target's foreground); 1 is as smooth as the truth.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct SpeckleScores {
+    /// The truth's own mean absolute Laplacian on those pixels (the score's denominator).
+    pub truth_laplacian: f64,
+    /// The model's NVS decoder `I_t`.
+    pub model: f64,
+    /// The 3DGS head's render `I_gs` (`None` without the head).
+    pub gs: Option<f64>,
+    /// The copy of the source view.
+    pub copy_source: f64,
+    /// The true-depth warp.
+    pub true_depth_warp: f64,
+}
+
+/// One oracle swap's scores: its render `I_gs` and the `I_t` the NVS decoder makes of it.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct OracleScores {
+    /// What was swapped.
+    pub swap: Swap,
+    /// The swapped render.
+    pub gs: MethodScores,
+    /// The NVS decoder's output on the swapped render.
+    pub nvs: MethodScores,
+    /// Speckle scores of `gs` and `nvs`.
+    pub gs_speckle: f64,
+    /// See `gs_speckle`.
+    pub nvs_speckle: f64,
+}
+
+/// A method's tallies: its scores and its speckle sums.
+#[derive(Default)]
+struct MethodTally {
+    scores: Tally,
+    speckle: SpeckleSums,
 }
 
 /// The true-depth warp's mean PSNR at one footprint.
@@ -212,7 +271,8 @@ pub fn run_folder(checkpoint: &Path) -> Option<PathBuf> {
 /// measured without the 3DGS head, as inference serves.
 ///
 /// # Errors
-/// A dataset without test subjects, or unreadable files.
+/// A dataset without test or training subjects, unreadable files, or `options.oracle` for a
+/// model without colour Gaussians.
 pub fn evaluate(
     model: &Prism,
     reader: &DatasetReader,
@@ -223,6 +283,18 @@ pub fn evaluate(
 ) -> Result<(Evaluation, Vec<SubjectGrid>)> {
     let fast = inference_model(model);
     let has_gs = model.gs_head.is_some();
+    if options.oracle
+        && model
+            .gs_head
+            .as_ref()
+            .is_none_or(|head| head.colour() == GsColour::Flow)
+    {
+        return Err(TrainError::Input(
+            "the oracle swaps need a model whose 3DGS head draws colour Gaussians (gs_head = \
+             true, gs_colour \"regressed\" or \"source\")"
+                .into(),
+        ));
+    }
     let dataset = SampleDataset::new(
         reader.clone(),
         SplitKind::Test,
@@ -233,6 +305,8 @@ pub fn evaluate(
     .with_depth();
     let mut disoccluded_by = RegionMethod::DepthTest;
     let background = reader.meta().background;
+    let true_depth_warp_sweep = pick_warp_footprint(reader, resolution, device)?;
+    let footprint = best_footprint(&true_depth_warp_sweep);
     let views = validation_views(options.views);
     let grid_views: Vec<usize> = validation_views(options.grid_views.min(views.len()))
         .into_iter()
@@ -240,8 +314,15 @@ pub fn evaluate(
         .collect();
     let subjects = dataset.subjects().to_vec();
     let bar = progress_bar(options.progress, (subjects.len() * views.len()) as u64);
-    let (mut nvs, mut copy, mut gs) = (Tally::default(), Tally::default(), Tally::default());
-    let mut warps: Vec<Tally> = WARP_FOOTPRINTS.iter().map(|_| Tally::default()).collect();
+    let mut nvs = MethodTally::default();
+    let mut copy = MethodTally::default();
+    let mut gs = MethodTally::default();
+    let mut warp = MethodTally::default();
+    let mut oracle: Vec<[MethodTally; 2]> = if options.oracle {
+        Swap::ALL.iter().map(|_| Default::default()).collect()
+    } else {
+        Vec::new()
+    };
     let mut grids = Vec::new();
     let mut fps_pair = None;
     for (s, subject) in subjects.iter().enumerate() {
@@ -262,32 +343,60 @@ pub fn evaluate(
                 fps_pair = Some(pairs.slice(0, 1));
             }
             let out = forward_pairs(if has_gs { model } else { &fast }, &pairs);
-            let pred = out.image.clamp(0.0, 1.0);
+            let pred = out.image.clone().clamp(0.0, 1.0);
             let gt = batch.target_image.clone();
+            let gt_host = HostImages::from_tensor(gt.clone());
+            let masks: Vec<&[f32]> = samples
+                .iter()
+                .map(|s| s.targets[0].mask.as_raw().as_slice())
+                .collect();
             let (region, method) = disoccluded_regions(&samples, device);
             if method == RegionMethod::Estimate {
                 disoccluded_by = method;
             }
-            let score = |tally: &mut Tally, image: Tensor<4>| {
-                tally.add_batch(&samples, &score_images(image.clone(), gt.clone(), lpips));
+            // Scores `image` into `tally`; returns it on the host.
+            let score = |tally: &mut MethodTally, image: Tensor<4>| {
+                let scores = &mut tally.scores;
+                scores.add_batch(&samples, &score_images(image.clone(), gt.clone(), lpips));
                 let in_region = score_region(image.clone(), gt.clone(), region.clone(), lpips);
-                let filled = psnr_region_filled(image, gt.clone(), region.clone());
-                tally.add_disoccluded(&samples, &in_region, &filled);
+                let filled = psnr_region_filled(image.clone(), gt.clone(), region.clone());
+                scores.add_disoccluded(&samples, &in_region, &filled);
+                let host = HostImages::from_tensor(image);
+                for (i, mask) in masks.iter().enumerate() {
+                    tally.speckle.add(speckle_sums(
+                        &host.images[i],
+                        &gt_host.images[i],
+                        Some(mask),
+                        host.width,
+                        host.height,
+                    ));
+                }
+                host
             };
-            score(&mut nvs, pred.clone());
-            score(&mut copy, batch.source_image.clone());
-            for (tally, &footprint) in warps.iter_mut().zip(&WARP_FOOTPRINTS) {
-                score(
-                    tally,
-                    true_depth_warp(&samples, background, footprint, device),
-                );
+            let pred_host = score(&mut nvs, pred);
+            let src_host = score(&mut copy, batch.source_image.clone());
+            score(
+                &mut warp,
+                true_depth_warp(&samples, background, footprint, device),
+            );
+            if let Some(g) = &out.gaussians {
+                score(&mut gs, g.image.clone().clamp(0.0, 1.0));
+                if options.oracle {
+                    let truth = OracleBatch::new(&samples, &g.gaussians);
+                    let [_, _, h, w] = gt.dims();
+                    for (tallies, &swap) in oracle.iter_mut().zip(&Swap::ALL) {
+                        let swapped = truth.swapped(swap, footprint, device);
+                        let render = draw(&swapped, &samples, background, device);
+                        let decoded =
+                            model
+                                .nvs_head
+                                .forward(out.target_t_out(), h, w, Some(render.clone()));
+                        let [gs_tally, nvs_tally] = tallies;
+                        score(gs_tally, render);
+                        score(nvs_tally, decoded.clamp(0.0, 1.0));
+                    }
+                }
             }
-            if let Some(g) = out.gaussians {
-                score(&mut gs, g.image.clamp(0.0, 1.0));
-            }
-            let pred_host = HostImages::from_tensor(pred);
-            let gt_host = HostImages::from_tensor(gt);
-            let src_host = HostImages::from_tensor(batch.source_image.clone());
             for (i, sample) in samples.iter().enumerate() {
                 let target = &sample.targets[0];
                 if let Some(dir) = &predictions_dir {
@@ -316,19 +425,27 @@ pub fn evaluate(
         Some(pair) => forward_fps(&fast, &pair, options.fps_runs.max(1)),
         None => f64::NAN,
     };
-    let nvs = nvs.finish();
-    let warps: Vec<MethodScores> = warps.into_iter().map(Tally::finish).collect();
-    let true_depth_warp_sweep: Vec<FootprintPsnr> = WARP_FOOTPRINTS
-        .iter()
-        .zip(&warps)
-        .map(|(&footprint, w)| FootprintPsnr {
-            footprint,
-            psnr: w.psnr,
-        })
-        .collect();
-    let best = (0..warps.len())
-        .max_by(|&a, &b| warps[a].psnr.total_cmp(&warps[b].psnr))
-        .expect("at least one footprint");
+    let speckle = SpeckleScores {
+        truth_laplacian: nvs.speckle.truth_mean(),
+        model: nvs.speckle.score(),
+        gs: has_gs.then(|| gs.speckle.score()),
+        copy_source: copy.speckle.score(),
+        true_depth_warp: warp.speckle.score(),
+    };
+    let oracle = options.oracle.then(|| {
+        oracle
+            .into_iter()
+            .zip(Swap::ALL)
+            .map(|([gs, nvs], swap)| OracleScores {
+                swap,
+                gs_speckle: gs.speckle.score(),
+                nvs_speckle: nvs.speckle.score(),
+                gs: gs.scores.finish(),
+                nvs: nvs.scores.finish(),
+            })
+            .collect()
+    });
+    let nvs = nvs.scores.finish();
     Ok((
         Evaluation {
             psnr: nvs.psnr,
@@ -341,14 +458,68 @@ pub fn evaluate(
             disoccluded_by,
             resolution,
             views_per_subject: views.len(),
-            copy_source: copy.finish(),
-            true_depth_warp: warps[best].clone(),
-            true_depth_warp_footprint: WARP_FOOTPRINTS[best],
+            copy_source: copy.scores.finish(),
+            true_depth_warp: warp.scores.finish(),
+            true_depth_warp_footprint: footprint,
             true_depth_warp_sweep,
-            gs: has_gs.then(|| gs.finish()),
+            speckle,
+            oracle,
+            gs: has_gs.then(|| gs.scores.finish()),
         },
         grids,
     ))
+}
+
+/// Training subjects the true-depth warp's footprint is chosen on.
+pub const WARP_SELECTION_SUBJECTS: usize = 3;
+/// Target views per training subject the footprint is chosen on.
+pub const WARP_SELECTION_VIEWS: usize = 10;
+
+/// The true-depth warp's mean PSNR at each of [`WARP_FOOTPRINTS`] on the first
+/// [`WARP_SELECTION_SUBJECTS`] training subjects ([`WARP_SELECTION_VIEWS`] evaluation views
+/// each): the warp is a baseline tuned like a model, on data it is not scored on.
+///
+/// # Errors
+/// A dataset without training subjects, or unreadable files.
+pub fn pick_warp_footprint(
+    reader: &DatasetReader,
+    resolution: u32,
+    device: &Device,
+) -> Result<Vec<FootprintPsnr>> {
+    let dataset = SampleDataset::new(
+        reader.clone(),
+        SplitKind::Train,
+        TargetSelection::Evaluation { per_sample: 1 },
+        Some((resolution, resolution)),
+        0,
+    )?;
+    let background = reader.meta().background;
+    let subjects = dataset.subjects().len().min(WARP_SELECTION_SUBJECTS);
+    let samples = (0..subjects)
+        .flat_map(|s| validation_views(WARP_SELECTION_VIEWS).into_iter().map(move |v| s * 100 + v - 1))
+        .map(|i| dataset.load(i))
+        .collect::<std::result::Result<Vec<Sample>, _>>()?;
+    let gt = PrismBatcher.batch_samples(&samples, device).target_image;
+    Ok(WARP_FOOTPRINTS
+        .iter()
+        .map(|&footprint| {
+            let warp = true_depth_warp(&samples, background, footprint, device);
+            let values = psnr(warp, gt.clone());
+            FootprintPsnr {
+                footprint,
+                psnr: values.iter().sum::<f64>() / values.len() as f64,
+            }
+        })
+        .collect())
+}
+
+/// The footprint of the sweep's best mean PSNR.
+fn best_footprint(sweep: &[FootprintPsnr]) -> f32 {
+    sweep
+        .iter()
+        .max_by(|a, b| a.psnr.total_cmp(&b.psnr))
+        .expect("at least one footprint")
+        .footprint
 }
 
 /// The disoccluded region of each sample's (first) target view, `[B, 1, H, W]` on `device`,

@@ -41,6 +41,7 @@ pub mod images;
 pub mod infer;
 pub mod log;
 pub mod loss_scale;
+pub mod oracle;
 pub mod parallel;
 pub mod plot;
 pub mod predict;

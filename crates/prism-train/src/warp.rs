@@ -89,7 +89,7 @@ fn source_cloud(sample: &Sample, footprint: f32) -> GaussianCloud {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use glam::Vec3;
     use image::{ImageBuffer, Luma, Rgb, Rgb32FImage};
@@ -128,7 +128,7 @@ mod tests {
     /// A square of 16 x 16 pixels on the plane z = 0, its colour a ramp in x and y, seen by
     /// the source camera; the target camera `dx` metres to the right. `foreground` false
     /// empties the mask.
-    fn sample(dx: f32, foreground: bool) -> Sample {
+    pub(crate) fn sample(dx: f32, foreground: bool) -> Sample {
         let source = camera(0.0);
         let inside = |x: u32, y: u32| foreground && (8..24).contains(&x) && (8..24).contains(&y);
         let rgb = ImageBuffer::from_fn(S, S, |x, y| {

@@ -2,7 +2,9 @@
 //! tokens of `T_out`, rendered in the target camera over the background -> `I_gs`.
 //!
 //! Like the NVS decoder, the head is pixel-aligned: `LN`, then `Linear(d, 12 p^2)` without bias
-//! and an unpatchify give 12 raw values per source pixel, activated as
+//! and an unpatchify give 12 raw values per source pixel (with `head_upsample = f`,
+//! `Linear(d, 12 f^2)` and a bilinear upsampling instead: smooth values, see
+//! [`crate::heads::head_map`]), activated as
 //!
 //! - distance along the pixel's unit ray `t = softplus(x_t + softplus^-1(depth_prior))` (about
 //!   `depth_prior` = 2 m at initialisation, always positive), centre `mu = o + t d`;
@@ -52,7 +54,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::ModelError;
 use crate::geometry::points::{inverse_softplus, pixel_rows};
-use crate::tokenizer::patch::unpatchify;
+use crate::heads::{head_map, values_per_channel};
 use crate::views::{Views, focals, points_along_rays};
 
 /// Raw values per Gaussian: distance 1, log-scale 3, rotation 4, opacity 1, colour 3.
@@ -90,6 +92,10 @@ pub(crate) struct GaussianHeadConfig {
     /// Start the opacities from the source's key on the background colour.
     #[config(default = false)]
     pub keying: bool,
+    /// The raw values' resolution: 0 for a free value per pixel (the paper's unpatchify),
+    /// `f` for `f x f` values per token upsampled bilinearly ([`head_map`]).
+    #[config(default = 0)]
+    pub upsample: usize,
     /// Standard deviation of the projection's normal initialisation.
     #[config(default = 0.02)]
     pub init_std: f64,
@@ -108,7 +114,7 @@ impl GaussianHeadConfig {
                 .init(device),
             linear: LinearConfig::new(
                 self.width,
-                GAUSSIAN_CHANNELS * self.patch_size * self.patch_size,
+                GAUSSIAN_CHANNELS * values_per_channel(self.patch_size, self.upsample),
             )
             .with_bias(false)
             .with_initializer(if self.is_geometric() {
@@ -121,6 +127,7 @@ impl GaussianHeadConfig {
             })
             .init(device),
             patch_size: self.patch_size,
+            upsample: self.upsample,
             depth_prior: self.depth_prior as f32,
             colour: self.colour,
             depth: self.depth,
@@ -193,6 +200,8 @@ pub struct GaussianHead {
     /// `Linear(d, 12 p^2)`, no bias.
     pub linear: Linear,
     patch_size: usize,
+    #[module(skip)]
+    upsample: usize,
     depth_prior: f32,
     #[module(skip)]
     colour: GsColour,
@@ -276,12 +285,13 @@ impl GaussianHead {
             distance: point_distance,
         } = source;
         let [_, _, hs, ws] = source_rays.dims();
-        let raw = unpatchify(
+        let raw = head_map(
             self.linear.forward(self.norm.forward(source_tokens)),
             GAUSSIAN_CHANNELS,
             hs,
             ws,
             self.patch_size,
+            self.upsample,
         );
         let device = raw.device();
         let sources = views.source_at(ws, hs);

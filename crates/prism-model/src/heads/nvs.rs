@@ -16,7 +16,8 @@ use burn::tensor::{Device, Tensor};
 
 use serde::{Deserialize, Serialize};
 
-use crate::tokenizer::patch::{patchify, unpatchify};
+use crate::heads::{head_map, values_per_channel};
+use crate::tokenizer::patch::patchify;
 
 /// What the NVS decoder predicts (`nvs_output` in `[model]`; see the module docs).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -49,6 +50,10 @@ pub(crate) struct NvsHeadConfig {
     /// (see [`RenderInput`]).
     #[config(default = false)]
     pub sees_render: bool,
+    /// The output map's resolution: 0 for a free value per pixel (the paper's unpatchify),
+    /// `f` for `f x f` values per token upsampled bilinearly ([`head_map`]).
+    #[config(default = 0)]
+    pub upsample: usize,
 }
 
 impl NvsHeadConfig {
@@ -59,7 +64,10 @@ impl NvsHeadConfig {
                 .with_bias(false)
                 .with_epsilon(self.norm_eps)
                 .init(device),
-            linear: LinearConfig::new(self.width, 3 * self.patch_size * self.patch_size)
+            linear: LinearConfig::new(
+                self.width,
+                3 * values_per_channel(self.patch_size, self.upsample),
+            )
                 .with_bias(false)
                 .with_initializer(match self.output {
                     NvsOutput::Direct => Initializer::Normal {
@@ -84,6 +92,7 @@ impl NvsHeadConfig {
                 }
             }),
             patch_size: self.patch_size,
+            upsample: self.upsample,
             output: self.output,
         }
     }
@@ -112,6 +121,8 @@ pub struct NvsHead {
     /// The render's patches as an input of the residual decoder, when configured.
     pub render_input: Option<RenderInput>,
     patch_size: usize,
+    #[module(skip)]
+    upsample: usize,
     #[module(skip)]
     output: NvsOutput,
 }
@@ -143,10 +154,19 @@ impl NvsHead {
         }
         let patches = self.linear.forward(tokens);
         match self.output {
-            NvsOutput::Direct => unpatchify(sigmoid(patches), 3, height, width, self.patch_size),
+            NvsOutput::Direct => sigmoid(head_map(
+                patches,
+                3,
+                height,
+                width,
+                self.patch_size,
+                self.upsample,
+            )),
             NvsOutput::Residual => {
                 let render = render.expect("nvs_output = \"residual\" needs the 3DGS head");
-                (render + unpatchify(patches, 3, height, width, self.patch_size)).clamp(0.0, 1.0)
+                let correction =
+                    head_map(patches, 3, height, width, self.patch_size, self.upsample);
+                (render + correction).clamp(0.0, 1.0)
             }
         }
     }

@@ -67,8 +67,9 @@ impl ParameterCounts {
         let stage_one = config.stage_one_blocks * per_block;
         let stage_three = config.stage_three_blocks * per_block;
         let sees_render = config.nvs_sees_render && config.nvs_output == NvsOutput::Residual;
+        let out = crate::heads::values_per_channel(config.patch_size, config.head_upsample);
         let nvs_head = d
-            + d * 3 * p2
+            + d * 3 * out
             + if sees_render {
                 (3 * p2 + 1) * d + (d + 1) * d
             } else {
@@ -109,7 +110,7 @@ impl ParameterCounts {
             0
         };
         let gs_head = if config.gs_head {
-            d + d * GAUSSIAN_CHANNELS * p2
+            d + d * GAUSSIAN_CHANNELS * out
         } else {
             0
         };
@@ -391,6 +392,13 @@ mod tests {
                 + counts.point_branch
                 + counts.gs_head
         );
+
+        // Smooth heads (`head_upsample = 2`): 2 x 2 values per token and channel.
+        let mut smooth = paper.clone();
+        smooth.head_upsample = 2;
+        let smooth_counts = ParameterCounts::of(&smooth);
+        assert_eq!(smooth_counts.nvs_head, 768 + 768 * 3 * 4);
+        assert_eq!(smooth_counts.gs_head, 768 + 768 * 12 * 4);
 
         let kinds = vec![AttentionKind::Full; 36];
         let info = ModelInfo::new(&paper, &kinds, 512);

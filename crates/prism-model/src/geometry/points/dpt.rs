@@ -124,7 +124,7 @@ pub struct DptHead {
 }
 
 /// `[B, h w, c f^2]` token features to a `[B, c, f h, f w]` map (pixel shuffle).
-fn shuffle(x: Tensor<3>, c: usize, f: usize, h: usize, w: usize) -> Tensor<4> {
+pub(crate) fn shuffle(x: Tensor<3>, c: usize, f: usize, h: usize, w: usize) -> Tensor<4> {
     let [b, _, _] = x.dims();
     permute(x.reshape([b, h, w, f, f, c]), [0, 5, 1, 3, 2, 4]).reshape([b, c, h * f, w * f])
 }
@@ -173,7 +173,7 @@ fn upsample_axis(x: Tensor<4>, f: usize, dim: usize) -> Tensor<4> {
 ///
 /// # Panics
 /// If `height` or `width` is not a multiple of the input's size.
-fn resize(x: Tensor<4>, height: usize, width: usize) -> Tensor<4> {
+pub(crate) fn resize(x: Tensor<4>, height: usize, width: usize) -> Tensor<4> {
     let [_, _, h, w] = x.dims();
     assert!(
         height.is_multiple_of(h) && width.is_multiple_of(w),

@@ -1,0 +1,353 @@
+//! Oracle swaps, a diagnostic of `prism evaluate --oracle`: the 3DGS head's Gaussians rendered
+//! again with one of their predicted properties replaced by the truth, to find which one costs
+//! the model its distance to the true-depth warp.
+//!
+//! The truth of each property, per source pixel (`N = H_s W_s` Gaussians per pair):
+//! - depth: the dataset's 3D point of a foreground pixel (on the pixel's ray at the true
+//!   depth); a background pixel keeps the model's centre;
+//! - colour: the source pixel's own colour;
+//! - opacity: the source mask (a foreground pixel at the warp's opacity, a background one
+//!   transparent);
+//! - scale: isotropic, the warp's footprint of one source pixel at the Gaussian's distance.
+//!
+//! Every swap is rendered like `I_gs` (over the background, in the target camera), and passed
+//! through the model's NVS decoder as `I_gs` would be, giving the `I_t` the swap would make.
+//! Swapping all four is the true-depth warp drawn with the model's background Gaussians too;
+//! "all but colour" is the true-depth warp with the model's colours. The truth never enters
+//! the model's own predictions: this runs only in evaluation, on datasets with point maps.
+
+use burn::tensor::{Device, Tensor, TensorData};
+use prism_data::{FOREGROUND, Sample};
+use prism_render::splat::{Gaussians, background, render};
+use serde::Serialize;
+
+/// Opacity of a foreground Gaussian in the opacity swap (the true-depth warp's).
+const TRUE_OPACITY: f32 = 0.99;
+/// Opacity of a background Gaussian in the opacity swap: none in effect.
+const BACKGROUND_OPACITY: f32 = 1e-4;
+
+/// Which of the Gaussians' properties take the truth's values.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Swap {
+    /// None: the model's Gaussians drawn again (the reference row; equal to `I_gs` for
+    /// colour Gaussians).
+    None,
+    /// Centres at the true depth.
+    Depth,
+    /// The source pixels' colours.
+    Colour,
+    /// Opacities from the source mask.
+    Opacity,
+    /// Isotropic sizes of the warp's footprint.
+    Scale,
+    /// All four: the true-depth warp, with the model's background Gaussians kept.
+    All,
+    /// Depth, opacity and scale: the true-depth warp with the model's colours.
+    AllButColour,
+}
+
+impl Swap {
+    /// Every swap, in the report's order.
+    pub const ALL: [Swap; 7] = [
+        Swap::None,
+        Swap::Depth,
+        Swap::Colour,
+        Swap::Opacity,
+        Swap::Scale,
+        Swap::All,
+        Swap::AllButColour,
+    ];
+
+    /// The row name in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Swap::None => "none (the model's Gaussians)",
+            Swap::Depth => "true depth",
+            Swap::Colour => "source colours",
+            Swap::Opacity => "opacity from the mask",
+            Swap::Scale => "warp-footprint scales",
+            Swap::All => "all four",
+            Swap::AllButColour => "all but colour (warp, model's colours)",
+        }
+    }
+
+    fn depth(self) -> bool {
+        matches!(self, Swap::Depth | Swap::All | Swap::AllButColour)
+    }
+
+    fn colour(self) -> bool {
+        matches!(self, Swap::Colour | Swap::All)
+    }
+
+    fn opacity(self) -> bool {
+        matches!(self, Swap::Opacity | Swap::All | Swap::AllButColour)
+    }
+
+    fn scale(self) -> bool {
+        matches!(self, Swap::Scale | Swap::All | Swap::AllButColour)
+    }
+}
+
+/// The model's Gaussians of a batch read back to the host, with the truth of each sample's
+/// source pixels, ready to be swapped and drawn.
+pub struct OracleBatch {
+    dims: [usize; 2],
+    means: Vec<f32>,
+    log_scales: Vec<f32>,
+    rotations: Vec<f32>,
+    opacity_logits: Vec<f32>,
+    colours: Vec<f32>,
+    true_means: Vec<f32>,
+    true_colours: Vec<f32>,
+    foreground: Vec<bool>,
+    /// Each pair's source camera centre and focal length (pixels).
+    sources: Vec<([f32; 3], f32)>,
+}
+
+fn host(t: Tensor<3>) -> Vec<f32> {
+    t.into_data()
+        .convert::<f32>()
+        .try_into_vec()
+        .expect("float tensor")
+}
+
+impl OracleBatch {
+    /// The model's `gaussians` of `samples` (one pair each, colour features) and the samples'
+    /// truth.
+    ///
+    /// # Panics
+    /// If the Gaussians are not one per source pixel of each sample.
+    pub fn new(samples: &[Sample], gaussians: &Gaussians) -> Self {
+        let [b, n, c] = gaussians.features.dims();
+        assert_eq!(b, samples.len(), "one pair per sample");
+        assert_eq!(c, 3, "colour Gaussians");
+        let mut true_means = Vec::with_capacity(b * n * 3);
+        let mut true_colours = Vec::with_capacity(b * n * 3);
+        let mut foreground = Vec::with_capacity(b * n);
+        let mut sources = Vec::with_capacity(b);
+        for sample in samples {
+            let source = &sample.source;
+            assert_eq!(sample.points.points.len(), n, "one point per source pixel");
+            assert_eq!(source.rgb.pixels().len(), n, "one Gaussian per source pixel");
+            for ((point, rgb), alpha) in sample
+                .points
+                .points
+                .iter()
+                .zip(source.rgb.pixels())
+                .zip(source.mask.pixels())
+            {
+                true_means.extend(point);
+                true_colours.extend(rgb.0);
+                foreground.push(alpha.0[0] > FOREGROUND);
+            }
+            let centre = source.camera.center();
+            sources.push((centre.to_array(), source.camera.intrinsics.fx));
+        }
+        Self {
+            dims: [b, n],
+            means: host(gaussians.means.clone()),
+            log_scales: host(gaussians.log_scales.clone()),
+            rotations: host(gaussians.rotations.clone()),
+            opacity_logits: host(gaussians.opacity_logits.clone()),
+            colours: host(gaussians.features.clone()),
+            true_means,
+            true_colours,
+            foreground,
+            sources,
+        }
+    }
+
+    /// The Gaussians with `swap`'s properties taken from the truth, the scales of the scale
+    /// swap `footprint` source pixels wide.
+    pub fn swapped(&self, swap: Swap, footprint: f32, device: &Device) -> Gaussians {
+        let [b, n] = self.dims;
+        let mut means = self.means.clone();
+        let mut log_scales = self.log_scales.clone();
+        let mut rotations = self.rotations.clone();
+        let mut opacity = self.opacity_logits.clone();
+        let colours = if swap.colour() {
+            self.true_colours.clone()
+        } else {
+            self.colours.clone()
+        };
+        let logit = |p: f32| (p / (1.0 - p)).ln();
+        for pair in 0..b {
+            let (centre, focal) = self.sources[pair];
+            for i in pair * n..(pair + 1) * n {
+                let fg = self.foreground[i];
+                if swap.depth() && fg {
+                    means[3 * i..3 * i + 3].copy_from_slice(&self.true_means[3 * i..3 * i + 3]);
+                }
+                if swap.opacity() {
+                    opacity[i] = logit(if fg { TRUE_OPACITY } else { BACKGROUND_OPACITY });
+                }
+                if swap.scale() {
+                    let distance = (0..3)
+                        .map(|k| (means[3 * i + k] - centre[k]).powi(2))
+                        .sum::<f32>()
+                        .sqrt();
+                    let log_scale = (footprint * distance / focal).max(1e-9).ln();
+                    log_scales[3 * i..3 * i + 3].fill(log_scale);
+                    rotations[4 * i..4 * i + 4].copy_from_slice(&[1.0, 0.0, 0.0, 0.0]);
+                }
+            }
+        }
+        let tensor = |values: Vec<f32>, c: usize| {
+            Tensor::<3>::from_data(TensorData::new(values, [b, n, c]), device)
+        };
+        Gaussians {
+            means: tensor(means, 3),
+            log_scales: tensor(log_scales, 3),
+            rotations: tensor(rotations, 4),
+            opacity_logits: tensor(opacity, 1),
+            features: tensor(colours, 3),
+        }
+    }
+}
+
+/// `gaussians` drawn in each sample's (first) target camera over `bg`, `[B, 3, H, W]` in
+/// [0, 1].
+pub fn draw(gaussians: &Gaussians, samples: &[Sample], bg: [f32; 3], device: &Device) -> Tensor<4> {
+    let cameras: Vec<_> = samples.iter().map(|s| s.targets[0].camera).collect();
+    render(gaussians, &cameras)
+        .expect("one camera per pair")
+        .over(background(&bg, device))
+        .clamp(0.0, 1.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::warp::true_depth_warp;
+    use prism_core::BackendKind;
+
+    /// A sample of the warp's tests: a 16 x 16 square on a plane 2 m away, the target 0.25 m
+    /// to the right.
+    fn sample() -> Sample {
+        crate::warp::tests::sample(0.25, true)
+    }
+
+    fn image(t: Tensor<4>) -> Vec<f32> {
+        t.into_data().try_into_vec_as::<f32>().unwrap()
+    }
+
+    /// Gaussians far from the truth: every pixel 3 m away on its ray, grey, half opaque,
+    /// 5 cm wide and turned.
+    fn wrong(samples: &[Sample], device: &Device) -> Gaussians {
+        let b = samples.len();
+        let n = (samples[0].points.width * samples[0].points.height) as usize;
+        let mut means = Vec::new();
+        for s in samples {
+            for y in 0..s.points.height {
+                for x in 0..s.points.width {
+                    let p = s
+                        .source
+                        .camera
+                        .unproject(x as f32 + 0.5, y as f32 + 0.5, 3.0);
+                    means.extend(p.to_array());
+                }
+            }
+        }
+        let tensor = |values: Vec<f32>, c: usize| {
+            Tensor::<3>::from_data(TensorData::new(values, [b, n, c]), device)
+        };
+        Gaussians {
+            means: tensor(means, 3),
+            log_scales: tensor(vec![0.05f32.ln(); b * n * 3], 3),
+            rotations: tensor([0.9, 0.1, 0.0, 0.0].repeat(b * n), 4),
+            opacity_logits: tensor(vec![0.0; b * n], 1),
+            features: tensor(vec![0.5; b * n * 3], 3),
+        }
+    }
+
+    #[test]
+    fn swapping_everything_draws_the_true_depth_warp() {
+        let device = BackendKind::Ndarray.device().unwrap();
+        let samples = vec![sample()];
+        let bg = [1.0; 3];
+        let batch = OracleBatch::new(&samples, &wrong(&samples, &device));
+        let warp = image(true_depth_warp(&samples, bg, 0.3, &device));
+        let all = image(draw(
+            &batch.swapped(Swap::All, 0.3, &device),
+            &samples,
+            bg,
+            &device,
+        ));
+        // The background Gaussians are transparent, so all four swaps are the warp.
+        let worst = warp
+            .iter()
+            .zip(&all)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(worst < 1e-3, "largest difference {worst}");
+        let none = image(draw(
+            &batch.swapped(Swap::None, 0.3, &device),
+            &samples,
+            bg,
+            &device,
+        ));
+        assert!(none.iter().zip(&warp).any(|(a, b)| (a - b).abs() > 0.1));
+    }
+
+    #[test]
+    fn each_swap_replaces_its_own_property_alone() {
+        let device = BackendKind::Ndarray.device().unwrap();
+        let samples = vec![sample()];
+        let model = wrong(&samples, &device);
+        let batch = OracleBatch::new(&samples, &model);
+        let read = |g: &Gaussians| {
+            [
+                host(g.means.clone()),
+                host(g.log_scales.clone()),
+                host(g.rotations.clone()),
+                host(g.opacity_logits.clone()),
+                host(g.features.clone()),
+            ]
+        };
+        let original = read(&model);
+        let fg = &batch.foreground;
+        assert_eq!(fg.iter().filter(|&&f| f).count(), 16 * 16);
+        for swap in Swap::ALL {
+            let got = read(&batch.swapped(swap, 0.3, &device));
+            let [means, scales, rotations, opacity, colours] = &got;
+            for i in 0..fg.len() {
+                let mean = &means[3 * i..3 * i + 3];
+                if swap.depth() && fg[i] {
+                    assert_eq!(mean, &batch.true_means[3 * i..3 * i + 3], "{swap:?}");
+                } else {
+                    assert_eq!(mean, &original[0][3 * i..3 * i + 3], "{swap:?}");
+                }
+                let o = opacity[i];
+                if swap.opacity() {
+                    let p = 1.0 / (1.0 + (-o).exp());
+                    let want = if fg[i] { TRUE_OPACITY } else { BACKGROUND_OPACITY };
+                    assert!((p - want).abs() < 1e-5, "{swap:?} {i}: {p}");
+                } else {
+                    assert_eq!(o, 0.0, "{swap:?}");
+                }
+                let scale = &scales[3 * i..3 * i + 3];
+                if swap.scale() {
+                    // One footprint of 0.3 source pixels at the centre's distance.
+                    let (centre, focal) = batch.sources[0];
+                    let d = (0..3)
+                        .map(|k| (mean[k] - centre[k]).powi(2))
+                        .sum::<f32>()
+                        .sqrt();
+                    let want = (0.3 * d / focal).ln();
+                    assert!(scale.iter().all(|s| (s - want).abs() < 1e-5), "{swap:?}");
+                    assert_eq!(&rotations[4 * i..4 * i + 4], &[1.0, 0.0, 0.0, 0.0]);
+                } else {
+                    assert_eq!(scale, &original[1][3 * i..3 * i + 3], "{swap:?}");
+                    assert_eq!(&rotations[4 * i..4 * i + 4], &original[2][4 * i..4 * i + 4]);
+                }
+            }
+            let want = if swap.colour() {
+                &batch.true_colours
+            } else {
+                &original[4]
+            };
+            assert_eq!(colours, want, "{swap:?}");
+        }
+    }
+}
