@@ -6,7 +6,8 @@
 //! - `prism bench`'s forward time of the same model (config `RUN/config.toml`, batch 1, the
 //!   model's resolution, median after warm-up): what the network alone costs;
 //! - `prism view --checkpoint RUN` in a headless Chromium (the end-to-end test's browser,
-//!   `tests/cli/browser.rs`), on the page's default input (the first held-out person):
+//!   `tests/cli/browser.rs`) opened at the URL it prints (with its token), on the page's
+//!   default input (the first held-out person):
 //!   - the server's time per frame (forward, 3DGS render, read back), as the page shows it;
 //!   - from an arrow-key press to the new frame decoded in the page, one press at a time;
 //!   - the frames shown per second while the mouse drags at 60 events per second.
@@ -22,7 +23,7 @@
 mod browser;
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use browser::Browser;
@@ -101,8 +102,8 @@ fn bench_forward_ms(args: &Args, scratch: &Path) -> f64 {
     rows["rows"][0]["ms"].as_f64().expect("a forward row")
 }
 
-/// `prism view` serving the run on a free loopback port, and its address.
-fn start_view(args: &Args) -> (Child, String) {
+/// `prism view` serving the run on a free loopback port.
+fn start_view(args: &Args) -> browser::Viewer {
     let mut command = prism();
     command
         .arg("view")
@@ -204,9 +205,9 @@ fn main() {
     let scratch = tempfile::tempdir().unwrap();
     let forward_ms = bench_forward_ms(&args, scratch.path());
 
-    let (mut server, address) = start_view(&args);
+    let server = start_view(&args);
     let mut browser = Browser::launch(&scratch.path().join("chromium"));
-    let page = browser.open(&format!("http://{address}/"));
+    let page = browser.open(&server.url);
     browser.wait(
         &page,
         "document.getElementById('nvs').src.startsWith('data:image/png')",
@@ -222,8 +223,7 @@ fn main() {
         .map(|(_, server)| server)
         .collect();
     drop(browser);
-    let _ = server.kill();
-    let _ = server.wait();
+    drop(server);
 
     println!(
         "| `{}` {} on {} | ms | frames / s |",

@@ -12,16 +12,18 @@ use prism_train::{TrainingConfig, fingerprint};
 /// Arguments of `prism serve`.
 #[derive(Args, Debug)]
 pub struct ServeArgs {
-    /// The address to listen on; port 0 picks a free one. Loopback by default: other machines
-    /// reach the server only through an address given here (e.g. `0.0.0.0:7000`).
+    /// The address to listen on, and only it; port 0 picks a free one. Loopback by default:
+    /// other machines reach the server only through an address given here (e.g.
+    /// `10.0.0.7:7000`). `--transport iroh` needs `0.0.0.0:PORT` or `[::]:PORT`: Burn's Iroh
+    /// transport binds every interface.
     #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:7000")]
     listen: SocketAddr,
     /// The file holding the token trainers must present [default: $PRISM_TOKEN].
     #[arg(long, value_name = "FILE")]
     token_file: Option<PathBuf>,
-    /// iroh (authenticated, encrypted; any network) or websocket (unencrypted; a trusted
-    /// network only).
-    #[arg(long, default_value = "iroh")]
+    /// websocket (unencrypted; a trusted network only) or iroh (authenticated, encrypted; any
+    /// network, on every interface of this machine).
+    #[arg(long, default_value = "websocket")]
     transport: TransportKind,
     /// The backend whose devices are served: ndarray, flex, wgpu or cuda.
     #[arg(long, default_value = "flex")]
@@ -49,6 +51,8 @@ pub struct ServeArgs {
 impl ServeArgs {
     /// Serves until SIGINT or SIGTERM, after printing the `--devices` entry that reaches it.
     pub fn run(self) -> anyhow::Result<()> {
+        // Before anything slow (a dataset's digest): a transport that cannot bind --listen alone.
+        self.transport.check_listen(self.listen)?;
         let token = read_token(self.token_file.as_deref())?;
         let fingerprint = match &self.config {
             Some(path) => fingerprint(&TrainingConfig::load(path)?),

@@ -1,9 +1,13 @@
 //! `prism view`: a live viewer in the browser. A local web server with one static page: the
 //! page asks for frames at the camera the user moves, the server synthesises them with the
-//! loaded model (`prism_train::viewer`) and answers with the images as JSON.
+//! loaded model (`prism_train::viewer`) and answers with the images as JSON. Only its own page,
+//! opened at the URL it prints, is answered ([`gate`]).
+
+mod gate;
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use anyhow::Context;
@@ -29,7 +33,8 @@ const MAX_UPLOAD_BYTES: usize = 32 << 20;
 
 /// A live viewer in the browser: move the camera around a person and watch the model answer.
 ///
-/// Serves one page on --listen: the input is an uploaded photo (framed as `prism infer` frames
+/// Serves one page on --listen, at the URL it prints (with a token no other page knows): the
+/// input is an uploaded photo (framed as `prism infer` frames
 /// it), a held-out person of the dataset (with the ground truth of the recorded view the camera
 /// snaps to), or the browser's camera. Drag, or use the arrow keys, to move the camera within
 /// +-30 degrees. Ctrl+C stops the server.
@@ -39,8 +44,8 @@ pub struct ViewArgs {
     /// teacher and a student.
     #[arg(long, value_name = "RUN_OR_CKPT", required = true)]
     checkpoint: Vec<PathBuf>,
-    /// Address to serve the page on (loopback by default: the page lets anyone who reaches it
-    /// upload images to this machine).
+    /// Address to serve the page on, and only it (loopback by default: the page shows the
+    /// input's photos, and whoever has its URL can upload images to this machine).
     #[arg(long, default_value = "127.0.0.1:8080", value_name = "ADDR")]
     listen: SocketAddr,
     /// A dataset whose held-out people can be inputs [default: the first checkpoint's
@@ -81,10 +86,29 @@ fn cached_dataset(checkpoint: &std::path::Path) -> Option<PathBuf> {
         .then_some(dir)
 }
 
-type Shared = Arc<Mutex<Viewer>>;
+/// What the handlers share.
+struct App {
+    /// The models and the input; they compute while holding the lock.
+    viewer: Mutex<Viewer>,
+    /// Frames made since the start (`/api/info`'s `frames`, beside the page's count of the
+    /// frames it drew).
+    frames: AtomicU64,
+}
+
+type Shared = Arc<App>;
 
 /// Serves the page and its API on `listen` until a stop signal.
 async fn serve(viewer: Viewer, listen: SocketAddr) -> anyhow::Result<()> {
+    let stop = prism_remote::stop_signal().context("installing the signal handlers")?;
+    let listener = tokio::net::TcpListener::bind(listen)
+        .await
+        .with_context(|| format!("listening on {listen}"))?;
+    let (guard, token) = gate::Gate::new(listener.local_addr()?)?;
+    let url = guard.page_url(&token);
+    let app = App {
+        viewer: Mutex::new(viewer),
+        frames: AtomicU64::new(0),
+    };
     let app = Router::new()
         .route("/", get(|| async { Html(PAGE) }))
         .route("/api/info", get(info))
@@ -95,18 +119,20 @@ async fn serve(viewer: Viewer, listen: SocketAddr) -> anyhow::Result<()> {
         .route("/api/live", post(live))
         .route("/api/person", post(person))
         .layer(DefaultBodyLimit::max(MAX_UPLOAD_BYTES))
-        .with_state(Arc::new(Mutex::new(viewer)));
-    let stop = prism_remote::stop_signal().context("installing the signal handlers")?;
-    let listener = tokio::net::TcpListener::bind(listen)
-        .await
-        .with_context(|| format!("listening on {listen}"))?;
-    let address = listener.local_addr()?;
-    println!("prism view: http://{address}/ (Ctrl+C stops it)");
+        .layer(axum::middleware::from_fn_with_state(
+            Arc::new(guard),
+            gate::Gate::check,
+        ))
+        .with_state(Arc::new(app));
+    println!("prism view: {url} (Ctrl+C stops it)");
     let _ = std::io::Write::flush(&mut std::io::stdout());
-    axum::serve(listener, app)
-        .with_graceful_shutdown(stop)
-        .await
-        .context("serving the viewer")?;
+    axum::serve(
+        listener,
+        app.into_make_service_with_connect_info::<SocketAddr>(),
+    )
+    .with_graceful_shutdown(stop)
+    .await
+    .context("serving the viewer")?;
     eprintln!("prism view: stopped");
     Ok(())
 }
@@ -125,11 +151,11 @@ struct At {
 /// Runs `work` on the viewer in a blocking thread, never on the async workers: the models
 /// compute while holding the lock.
 async fn with_viewer<T: Send + 'static>(
-    viewer: Shared,
+    app: Shared,
     work: impl FnOnce(&mut Viewer) -> prism_train::error::Result<T> + Send + 'static,
 ) -> Result<T, Response> {
     tokio::task::spawn_blocking(move || {
-        let mut viewer = viewer.lock().unwrap_or_else(|p| p.into_inner());
+        let mut viewer = app.viewer.lock().unwrap_or_else(|p| p.into_inner());
         work(&mut viewer)
     })
     .await
@@ -142,14 +168,37 @@ fn refusal(status: StatusCode, message: String) -> Response {
     (status, axum::Json(json!({ "error": message }))).into_response()
 }
 
-async fn info(State(viewer): State<Shared>) -> Response {
-    let described = with_viewer(viewer, |v| {
+/// A frame `work` makes at the camera `at`, counted in `app.frames`; refused (400) unless the
+/// camera's angles are finite (a NaN passes any clamp).
+async fn make_frame(
+    app: Shared,
+    at: At,
+    work: impl FnOnce(&mut Viewer, At) -> prism_train::error::Result<Frame> + Send + 'static,
+) -> Result<Frame, Response> {
+    if !(at.yaw.is_finite() && at.pitch.is_finite()) {
+        return Err(refusal(
+            StatusCode::BAD_REQUEST,
+            format!(
+                "yaw and pitch are finite degrees (got yaw {}, pitch {})",
+                at.yaw, at.pitch
+            ),
+        ));
+    }
+    let frame = with_viewer(app.clone(), move |v| work(v, at)).await?;
+    app.frames.fetch_add(1, Ordering::Relaxed);
+    Ok(frame)
+}
+
+async fn info(State(app): State<Shared>) -> Response {
+    let frames = app.frames.load(Ordering::Relaxed);
+    let described = with_viewer(app, move |v| {
         Ok(json!({
             "models": v.models(),
             "people": v.people(),
             "backend": v.backend().to_string(),
             "resolution": v.resolution(),
             "max_angle_deg": v.max_angle_deg(),
+            "frames": frames,
         }))
     });
     match described.await {
@@ -158,15 +207,15 @@ async fn info(State(viewer): State<Shared>) -> Response {
     }
 }
 
-async fn frame(State(viewer): State<Shared>, Query(at): Query<At>) -> Response {
-    match with_viewer(viewer, move |v| v.frame(at.model, at.yaw, at.pitch)).await {
+async fn frame(State(app): State<Shared>, Query(at): Query<At>) -> Response {
+    match make_frame(app, at, |v, at| v.frame(at.model, at.yaw, at.pitch)).await {
         Ok(frame) => frame_json(&frame),
         Err(refused) => refused,
     }
 }
 
-async fn live(State(viewer): State<Shared>, Query(at): Query<At>, body: Bytes) -> Response {
-    let made = with_viewer(viewer, move |v| {
+async fn live(State(app): State<Shared>, Query(at): Query<At>, body: Bytes) -> Response {
+    let made = make_frame(app, at, move |v, at| {
         v.set_photo(&body)?;
         v.frame(at.model, at.yaw, at.pitch)
     });
@@ -176,15 +225,15 @@ async fn live(State(viewer): State<Shared>, Query(at): Query<At>, body: Bytes) -
     }
 }
 
-async fn view_png(State(viewer): State<Shared>, Query(at): Query<At>) -> Response {
-    match with_viewer(viewer, move |v| v.frame(at.model, at.yaw, at.pitch)).await {
+async fn view_png(State(app): State<Shared>, Query(at): Query<At>) -> Response {
+    match make_frame(app, at, |v, at| v.frame(at.model, at.yaw, at.pitch)).await {
         Ok(frame) => ([(header::CONTENT_TYPE, "image/png")], png_bytes(&frame.nvs)).into_response(),
         Err(refused) => refused,
     }
 }
 
-async fn gaussians(State(viewer): State<Shared>, Query(at): Query<At>) -> Response {
-    match with_viewer(viewer, move |v| v.ply(at.model)).await {
+async fn gaussians(State(app): State<Shared>, Query(at): Query<At>) -> Response {
+    match with_viewer(app, move |v| v.ply(at.model)).await {
         Ok(bytes) => (
             [
                 (header::CONTENT_TYPE, "application/octet-stream"),
@@ -200,8 +249,8 @@ async fn gaussians(State(viewer): State<Shared>, Query(at): Query<At>) -> Respon
     }
 }
 
-async fn photo(State(viewer): State<Shared>, body: Bytes) -> Response {
-    match with_viewer(viewer, move |v| v.set_photo(&body)).await {
+async fn photo(State(app): State<Shared>, body: Bytes) -> Response {
+    match with_viewer(app, move |v| v.set_photo(&body)).await {
         Ok(framing) => axum::Json(json!({ "framing": format!("{framing:?}") })).into_response(),
         Err(refused) => refused,
     }
@@ -213,8 +262,8 @@ struct PersonIndex {
     index: usize,
 }
 
-async fn person(State(viewer): State<Shared>, Query(p): Query<PersonIndex>) -> Response {
-    match with_viewer(viewer, move |v| v.set_person(p.index)).await {
+async fn person(State(app): State<Shared>, Query(p): Query<PersonIndex>) -> Response {
+    match with_viewer(app, move |v| v.set_person(p.index)).await {
         Ok(()) => axum::Json(json!({ "person": p.index })).into_response(),
         Err(refused) => refused,
     }

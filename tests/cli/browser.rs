@@ -1,7 +1,7 @@
 //! A headless Chromium driven over the DevTools protocol (one WebSocket, JSON messages): what
 //! the viewer's browser test and its latency benchmark (`benches/view.rs`, which includes this
-//! file) use to start `prism view`, load its page, press keys, drag the mouse and read the
-//! page's state.
+//! file) use to start `prism view`, load its page at the URL it prints, press keys, drag the
+//! mouse and read the page's state.
 //!
 //! Chromium is found as `chromium` or `chromium-browser` on the PATH, or at `PRISM_CHROMIUM`.
 
@@ -16,9 +16,43 @@ use serde_json::{Value, json};
 use tungstenite::stream::MaybeTlsStream;
 use tungstenite::{Message, WebSocket};
 
-/// Starts `prism view` (`command`, with its arguments, listening on port 0) and returns it with
-/// the address it announced on its first line of stdout.
-pub fn start_viewer(command: &mut Command) -> (Child, String) {
+/// A started `prism view`; killed when dropped (a failed test leaves no server behind).
+pub struct Viewer {
+    /// The process.
+    pub child: Child,
+    /// The page's URL it printed, with its token.
+    pub url: String,
+}
+
+impl Viewer {
+    /// The address it listens on, `HOST:PORT`.
+    pub fn address(&self) -> &str {
+        let rest = self.url.trim_start_matches("http://");
+        rest.split('/').next().unwrap()
+    }
+
+    /// The port it listens on.
+    pub fn port(&self) -> u16 {
+        let port = self.address().rsplit(':').next().unwrap();
+        port.parse().unwrap()
+    }
+
+    /// The token of its URL (empty if none).
+    pub fn token(&self) -> &str {
+        self.url.split_once("token=").map_or("", |(_, token)| token)
+    }
+}
+
+impl Drop for Viewer {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Starts `prism view` (`command`, with its arguments, listening on port 0), once it has
+/// printed its URL on its first line of stdout.
+pub fn start_viewer(command: &mut Command) -> Viewer {
     let mut child = command
         .stdout(Stdio::piped())
         .spawn()
@@ -27,13 +61,12 @@ pub fn start_viewer(command: &mut Command) -> (Child, String) {
     BufReader::new(child.stdout.take().unwrap())
         .read_line(&mut line)
         .unwrap();
-    let address = line
-        .split("http://")
-        .nth(1)
-        .and_then(|rest| rest.split('/').next())
-        .unwrap_or_else(|| panic!("prism view announced no address: {line:?}"))
+    let url = line
+        .split_whitespace()
+        .find(|word| word.starts_with("http://"))
+        .unwrap_or_else(|| panic!("prism view announced no URL: {line:?}"))
         .to_string();
-    (child, address)
+    Viewer { child, url }
 }
 
 /// The Chromium of this machine: `PRISM_CHROMIUM`, else `chromium` or `chromium-browser`

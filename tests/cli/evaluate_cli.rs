@@ -219,7 +219,10 @@ fn evaluate_writes_every_key_the_report_and_the_grids() {
         })
         .unwrap();
     assert_eq!(best["footprint"], v["true_depth_warp_footprint"]);
-    assert_ne!(best["psnr"], warp["psnr"], "not scored on the test views: {sweep:?}");
+    assert_ne!(
+        best["psnr"], warp["psnr"],
+        "not scored on the test views: {sweep:?}"
+    );
     assert!(
         sweep.iter().any(|f| f["psnr"] != best["psnr"]),
         "the footprint changes the warp: {sweep:?}"
@@ -232,7 +235,10 @@ fn evaluate_writes_every_key_the_report_and_the_grids() {
     // Speckle: every method scored against the truth's smooth pixels; the copy of another
     // view, with its edges in the wrong places, is noisier there than the truth.
     let speckle = &v["speckle"];
-    assert!(speckle["truth_laplacian"].as_f64().unwrap() > 0.0, "{speckle}");
+    assert!(
+        speckle["truth_laplacian"].as_f64().unwrap() > 0.0,
+        "{speckle}"
+    );
     for key in ["model", "gs", "true_depth_warp"] {
         assert!(speckle[key].as_f64().unwrap() > 0.0, "{key}: {speckle}");
     }
@@ -244,12 +250,32 @@ fn evaluate_writes_every_key_the_report_and_the_grids() {
     let swaps: Vec<&str> = oracle.iter().map(|r| r["swap"].as_str().unwrap()).collect();
     assert_eq!(
         swaps,
-        ["none", "depth", "colour", "opacity", "scale", "all", "all_but_colour"]
+        [
+            "none",
+            "depth",
+            "colour",
+            "opacity",
+            "scale",
+            "all",
+            "all_but_colour"
+        ]
     );
     let psnr = |m: &serde_json::Value| m["psnr"].as_f64().unwrap();
-    assert!((psnr(&oracle[0]["gs"]) - psnr(gs)).abs() < 1e-4, "{:?}", oracle[0]);
-    assert!((psnr(&oracle[0]["nvs"]) - psnr(&v)).abs() < 1e-4, "{:?}", oracle[0]);
-    assert!((psnr(&oracle[5]["gs"]) - psnr(warp)).abs() < 0.1, "{:?}", oracle[5]);
+    assert!(
+        (psnr(&oracle[0]["gs"]) - psnr(gs)).abs() < 1e-4,
+        "{:?}",
+        oracle[0]
+    );
+    assert!(
+        (psnr(&oracle[0]["nvs"]) - psnr(&v)).abs() < 1e-4,
+        "{:?}",
+        oracle[0]
+    );
+    assert!(
+        (psnr(&oracle[5]["gs"]) - psnr(warp)).abs() < 0.1,
+        "{:?}",
+        oracle[5]
+    );
     for row in oracle {
         assert!(row["gs"]["psnr_disoccluded"].as_f64().unwrap().is_finite());
         assert!(row["nvs_speckle"].as_f64().unwrap() > 0.0);

@@ -8,6 +8,7 @@
 
 mod browser;
 mod common;
+mod sockets;
 
 mod ablate_cli;
 mod bench_cli;

@@ -1,13 +1,15 @@
 //! Training on devices served by `prism serve`, end to end through the built binary on
-//! loopback: two servers (WebSocket, then Iroh; one loading its shares from its own copy of
-//! the dataset) and one server of two devices train like one local device with the same
-//! global batch, and the student's distillation does up to the served devices' unfused
-//! kernels; a killed server stops
-//! the trainer with its name and the run resumes; a server of another model config or
-//! dataset, a wrong token and malformed or unreachable devices are refused with one clear
-//! line, and a server that cannot read its copy of the dataset is named with the file.
+//! loopback: two servers (WebSocket, then Iroh on every interface, which it warns about; one
+//! loading its shares from its own copy of the dataset) and one server of two devices train
+//! like one local device with the same global batch, and the student's distillation does up
+//! to the served devices' unfused kernels; a killed server stops the trainer with its name and
+//! the run resumes; a server of another model config or dataset, a wrong token and malformed
+//! or unreachable devices are refused with one clear line, and a server that cannot read its
+//! copy of the dataset is named with the file. The sockets a server holds are read from the
+//! kernel: nothing listens beyond the address given.
 
 use crate::common;
+use crate::sockets;
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -47,11 +49,12 @@ fn config_data() -> prism_data::SynthOptions {
 }
 
 /// A file of the dataset folder `dir` other than `dataset.json` (the first in name order,
-/// searched depth first).
+/// searched depth first; hidden names, such as the digest's cache, are not the dataset's).
 fn first_file_beside_the_metadata(dir: &Path) -> PathBuf {
     let mut entries: Vec<PathBuf> = std::fs::read_dir(dir)
         .unwrap()
         .map(|e| e.unwrap().path())
+        .filter(|p| !p.file_name().unwrap().to_string_lossy().starts_with('.'))
         .collect();
     entries.sort();
     for path in entries {
@@ -85,34 +88,40 @@ fn setup(dir: &Path, config: &TrainingConfig) -> (PathBuf, PathBuf) {
     (path, token)
 }
 
-/// A `prism serve` child process on a free loopback port; killed when dropped.
+/// A `prism serve` child process; killed when dropped.
 struct Server {
     child: Child,
-    /// The `--devices` entry it printed.
+    /// The `--devices` entry it printed (dialling loopback).
     entry: String,
     /// Its stderr, a file beside the token.
     log: PathBuf,
 }
 
 impl Server {
+    /// `prism serve --transport TRANSPORT` on a free port: loopback, or every interface for
+    /// iroh, which Burn binds on no less.
     fn start(transport: &str, token: &Path, extra: &[&str]) -> Self {
+        let listen = if transport == "iroh" {
+            "0.0.0.0:0"
+        } else {
+            "127.0.0.1:0"
+        };
+        let mut args = vec!["--listen", listen, "--transport", transport];
+        args.extend_from_slice(extra);
+        Self::spawn(&args, token)
+    }
+
+    /// `prism serve ARGS --token-file TOKEN`, once it has printed its entry.
+    fn spawn(args: &[&str], token: &Path) -> Self {
         static STARTED: AtomicUsize = AtomicUsize::new(0);
         let n = STARTED.fetch_add(1, Ordering::Relaxed);
         let log = token.with_file_name(format!("serve-{n}.log"));
-        let mut child = prism(&[
-            "serve",
-            "--listen",
-            "127.0.0.1:0",
-            "--transport",
-            transport,
-            "--token-file",
-            s(token),
-        ])
-        .args(extra)
-        .stdout(Stdio::piped())
-        .stderr(std::fs::File::create(&log).unwrap())
-        .spawn()
-        .unwrap();
+        let mut child = prism(&["serve", "--token-file", s(token)])
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .unwrap();
         let stdout = child.stdout.take().unwrap();
         let (send, receive) = mpsc::channel();
         std::thread::spawn(move || {
@@ -123,11 +132,19 @@ impl Server {
         let entry = receive
             .recv_timeout(Duration::from_secs(60))
             .expect("prism serve printed its address");
-        Self {
-            child,
-            entry: entry.trim().to_string(),
-            log,
-        }
+        // An iroh server on every interface is named by this machine's host name; dial loopback.
+        let entry = match entry.trim().rsplit_once('@') {
+            Some((node, address)) => {
+                format!("{node}@127.0.0.1:{}", address.rsplit(':').next().unwrap())
+            }
+            None => entry.trim().to_string(),
+        };
+        Self { child, entry, log }
+    }
+
+    /// The port it listens on, from its entry.
+    fn port(&self) -> u16 {
+        self.entry.rsplit(':').next().unwrap().parse().unwrap()
     }
 }
 
@@ -229,6 +246,13 @@ fn served_devices_train_like_one_local_device() {
             !sent(&servers[0]) && sent(&servers[1]),
             "{transport}: {notes}"
         );
+        if transport == "iroh" {
+            let said = std::fs::read_to_string(&servers[0].log).unwrap();
+            assert!(
+                said.contains("warning: iroh listens on every interface"),
+                "{said}"
+            );
+        }
         assert_eq!(Checkpoint::read(&out).unwrap().state.devices, 2);
         assert_same_curve(&out, &local);
         // Float rounding (the served device runs Burn's composed operations, batched into
@@ -500,21 +524,20 @@ fn refusals_are_one_clear_line() {
 fn a_server_that_cannot_read_its_share_is_named_with_the_file() {
     let dir = scratch("unreadable");
     let (config, token) = setup(&dir, &tiny_config(1));
-    // Every image of the copy overwritten with zeros of the same size: the same files and
-    // sizes (the handshake's digest), none of them readable.
-    let data = dataset_copy(&dir, |copy| {
-        for subject in std::fs::read_dir(copy).unwrap() {
-            let rgb = subject.unwrap().path().join("rgb");
-            if rgb.is_dir() {
-                for image in std::fs::read_dir(rgb).unwrap() {
-                    let image = image.unwrap().path();
-                    let len = std::fs::metadata(&image).unwrap().len() as usize;
-                    std::fs::write(&image, vec![0u8; len]).unwrap();
-                }
+    let data = dataset_copy(&dir, |_| {});
+    let server = Server::start("websocket", &token, &["--data", s(&data)]);
+    // Every image of the copy overwritten with zeros once the server has taken its digest
+    // (at its start, so the handshake passes): none of them readable.
+    for subject in std::fs::read_dir(&data).unwrap() {
+        let rgb = subject.unwrap().path().join("rgb");
+        if rgb.is_dir() {
+            for image in std::fs::read_dir(rgb).unwrap() {
+                let image = image.unwrap().path();
+                let len = std::fs::metadata(&image).unwrap().len() as usize;
+                std::fs::write(&image, vec![0u8; len]).unwrap();
             }
         }
-    });
-    let server = Server::start("websocket", &token, &["--data", s(&data)]);
+    }
     let devices = format!("local,{}", server.entry);
     let err = failure(train(
         &config,
@@ -554,6 +577,37 @@ fn serve_stops_cleanly_on_sigint_and_sigterm() {
         };
         assert!(status.success(), "SIG{signal}: {status}");
     }
+}
+
+/// Each transport of `prism serve` binds only the address given, as the kernel lists the
+/// sockets the process holds: the default transport (WebSocket) and WebSocket named, on
+/// loopback and nothing on `0.0.0.0` or `[::]`. Iroh, which Burn binds on every interface, is
+/// refused the default loopback address, saying why and what to do; given every interface it
+/// warns (`served_devices_train_like_one_local_device`).
+#[test]
+fn serve_listens_only_on_the_address_given() {
+    let dir = scratch("sockets");
+    let (_, token) = setup(&dir, &tiny_config(1));
+    for transport in [&[][..], &["--transport", "websocket"][..]] {
+        let mut args = vec!["--listen", "127.0.0.1:0"];
+        args.extend_from_slice(transport);
+        let server = Server::spawn(&args, &token);
+        let what = format!("prism serve {}", args.join(" "));
+        sockets::assert_loopback_only(server.child.id(), server.port(), &what);
+    }
+    let err = failure(prism(&[
+        "serve",
+        "--transport",
+        "iroh",
+        "--token-file",
+        s(&token),
+    ]));
+    assert!(
+        err.contains("every interface")
+            && err.contains("--listen 0.0.0.0:7000")
+            && err.contains("--transport websocket"),
+        "{err}"
+    );
 }
 
 /// A client holding the token sends each input past a server's limits, straight to the

@@ -111,7 +111,10 @@ fn a_killed_run_leaves_a_loadable_checkpoint_and_resumes_exactly() {
     assert!(lines.len() >= 30, "{progress}");
     assert!(lines.iter().any(|l| l.contains("60/60 [")), "{progress}");
     assert!(lines.iter().all(|l| l.contains(" < ")), "{progress}");
-    assert!(!progress.contains('\u{1b}'), "no terminal escapes: {progress}");
+    assert!(
+        !progress.contains('\u{1b}'),
+        "no terminal escapes: {progress}"
+    );
     assert_eq!(weights(&killed), weights(&straight));
     let steps: Vec<u64> = read_metrics(&killed.join("metrics.jsonl"))
         .unwrap()

@@ -160,7 +160,10 @@ mod tests {
     fn noise_on_a_smooth_image_raises_the_score() {
         let gt = truth(false);
         let same = speckle_sums(&gt, &gt, None, S, S);
-        assert!(same.pixels > (S - 4) * (S - 4) / 2, "most pixels are smooth");
+        assert!(
+            same.pixels > (S - 4) * (S - 4) / 2,
+            "most pixels are smooth"
+        );
         assert!((same.score() - 1.0).abs() < 1e-9, "{}", same.score());
         let speckled = speckle_sums(&noisy(&gt, 0.05), &gt, None, S, S);
         assert_eq!(speckled.pixels, same.pixels, "the truth decides the pixels");

@@ -206,8 +206,9 @@ pub struct PrismConfig {
     /// `geometry/injection.rs`).
     #[config(default = 1.0)]
     pub gate_init: f64,
-    /// The 3DGS head's colours: `"regressed"` (the paper) or `"source"`, the source pixel's
-    /// colour plus a learned correction (see `heads/gaussian.rs`).
+    /// The 3DGS head's colours: `"regressed"` (the paper), `"source"` (the source pixel's
+    /// colour plus a learned correction), `"pixel"` (the source pixel's colour as it is) or
+    /// `"flow"` (see `heads/gaussian.rs`).
     #[config(default = "GsColour::Regressed")]
     pub gs_colour: GsColour,
     /// The 3DGS head's distances: `"head"` (the paper) or `"points"`, the point branch's

@@ -21,11 +21,31 @@ use crate::shard;
 /// How trainers reach the server.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum TransportKind {
-    /// Iroh (QUIC): authenticated and encrypted, across any network. The default.
-    #[default]
+    /// Iroh (QUIC): authenticated and encrypted, across any network. Burn 0.22's
+    /// `IrohTransport` binds its UDP port on every interface (`0.0.0.0` and `[::]`, burn-remote
+    /// `src/transport/iroh/server.rs`, `bind_endpoint`), so it only serves a listening address
+    /// that names every interface ([`TransportKind::check_listen`]).
     Iroh,
-    /// A plain WebSocket: unencrypted, for a trusted network.
+    /// A plain WebSocket: unencrypted, for a trusted network. The default: it binds exactly the
+    /// address given, loopback unless told otherwise.
+    #[default]
     WebSocket,
+}
+
+impl TransportKind {
+    /// Whether this transport can bind `listen` and nothing more: every address for WebSocket;
+    /// for Iroh, which binds every interface whatever it is given, only an address that says so
+    /// (`0.0.0.0:PORT` or `[::]:PORT`), so that no server listens wider than its command line
+    /// reads.
+    ///
+    /// # Errors
+    /// Iroh with an address of one interface (loopback included).
+    pub fn check_listen(self, listen: SocketAddr) -> Result<(), ServeError> {
+        if self == Self::Iroh && !listen.ip().is_unspecified() {
+            return Err(ServeError::IrohOnOneAddress { address: listen });
+        }
+        Ok(())
+    }
 }
 
 impl FromStr for TransportKind {
@@ -53,7 +73,8 @@ impl fmt::Display for TransportKind {
 
 /// What `prism serve` serves, where, and to whom.
 pub struct ServeOptions {
-    /// The address to listen on (`0.0.0.0:7000`; port 0 picks a free one).
+    /// The address to listen on (`127.0.0.1:7000`; port 0 picks a free one). Iroh needs one
+    /// naming every interface ([`TransportKind::check_listen`]).
     pub listen: SocketAddr,
     /// The transport.
     pub transport: TransportKind,
@@ -84,6 +105,18 @@ pub enum ServeError {
         /// Why.
         source: std::io::Error,
     },
+    /// Iroh was asked to listen on one address, which Burn's Iroh transport cannot do.
+    #[error(
+        "--transport iroh cannot listen on {address} alone: Burn 0.22's Iroh transport binds its \
+         UDP port on every interface. Use --transport websocket to listen on one address \
+         (loopback by default), or give --listen 0.0.0.0:{port} (or [::]:{port}) to accept \
+         every interface",
+        port = .address.port()
+    )]
+    IrohOnOneAddress {
+        /// The address asked for.
+        address: SocketAddr,
+    },
     /// The Iroh identity file cannot be read or created.
     #[error("cannot read or create the Iroh identity {}: {source}", path.display())]
     Identity {
@@ -103,8 +136,10 @@ pub enum ServeError {
 /// client retries).
 ///
 /// # Errors
-/// The address cannot be bound, or Burn's server fails.
+/// The transport cannot listen on the address alone ([`TransportKind::check_listen`]), the
+/// address cannot be bound, or Burn's server fails.
 pub fn serve(options: ServeOptions, announce: impl FnOnce(&str)) -> Result<(), ServeError> {
+    options.transport.check_listen(options.listen)?;
     let authorizer = Doorkeeper(
         TokenAuthorizer::new(options.token.as_str())
             .map_err(|_| ServeError::Burn("the token is empty".into()))?,
@@ -159,6 +194,11 @@ pub fn serve(options: ServeOptions, announce: impl FnOnce(&str)) -> Result<(), S
                 .with_relays(relays)
                 .with_port(port);
             let address = SocketAddr::new(options.listen.ip(), port);
+            eprintln!(
+                "prism serve: warning: iroh listens on every interface of this machine (UDP port \
+                 {port}, IPv4 and IPv6): any host that reaches it can ask for a session, which \
+                 only the token refuses"
+            );
             let entry = format!("remote:iroh:{}@{}", transport.id(), shown(address));
             (Transport::from(transport), entry)
         }

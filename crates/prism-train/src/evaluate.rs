@@ -47,8 +47,8 @@ use crate::report::{EvaluationFiles, write_evaluation};
 use crate::tally::{DisoccludedScores, MeanScores, MethodScores, PerAngle, Tally};
 use crate::validate::validation_views;
 use crate::warp::{WARP_FOOTPRINTS, true_depth_warp};
-use prism_model::GsColour;
 use prism_core::images::HostImages;
+use prism_model::GsColour;
 
 /// How an evaluation runs.
 #[derive(Clone, Debug)]
@@ -496,7 +496,11 @@ pub fn pick_warp_footprint(
     let background = reader.meta().background;
     let subjects = dataset.subjects().len().min(WARP_SELECTION_SUBJECTS);
     let samples = (0..subjects)
-        .flat_map(|s| validation_views(WARP_SELECTION_VIEWS).into_iter().map(move |v| s * 100 + v - 1))
+        .flat_map(|s| {
+            validation_views(WARP_SELECTION_VIEWS)
+                .into_iter()
+                .map(move |v| s * 100 + v - 1)
+        })
         .map(|i| dataset.load(i))
         .collect::<std::result::Result<Vec<Sample>, _>>()?;
     let gt = PrismBatcher.batch_samples(&samples, device).target_image;

@@ -129,7 +129,11 @@ impl OracleBatch {
         for sample in samples {
             let source = &sample.source;
             assert_eq!(sample.points.points.len(), n, "one point per source pixel");
-            assert_eq!(source.rgb.pixels().len(), n, "one Gaussian per source pixel");
+            assert_eq!(
+                source.rgb.pixels().len(),
+                n,
+                "one Gaussian per source pixel"
+            );
             for ((point, rgb), alpha) in sample
                 .points
                 .points
@@ -321,7 +325,11 @@ mod tests {
                 let o = opacity[i];
                 if swap.opacity() {
                     let p = 1.0 / (1.0 + (-o).exp());
-                    let want = if fg[i] { TRUE_OPACITY } else { BACKGROUND_OPACITY };
+                    let want = if fg[i] {
+                        TRUE_OPACITY
+                    } else {
+                        BACKGROUND_OPACITY
+                    };
                     assert!((p - want).abs() < 1e-5, "{swap:?} {i}: {p}");
                 } else {
                     assert_eq!(o, 0.0, "{swap:?}");

@@ -20,7 +20,8 @@
 //! scratch (pixel-aligned Gaussians that carry the source pixels, as GPS-Gaussian does):
 //!
 //! - `gs_colour = "source"`: the colour is the source pixel's, corrected by the head,
-//!   `c = clamp(I_s + x_c, 0, 1)`, instead of `sigmoid(x_c)`; `gs_colour = "flow"`: the
+//!   `c = clamp(I_s + x_c, 0, 1)`, instead of `sigmoid(x_c)`; `gs_colour = "pixel"`: the
+//!   source pixel's colour as it is, `c = I_s`; `gs_colour = "flow"`: the
 //!   Gaussians splat their source pixel's coordinates instead of a colour, and `I_gs` samples
 //!   the source image there (appearance flow from forward splatting, see [`GsColour::Flow`]);
 //! - `gs_depth = "points"`: the distance is the point branch's (which `L_pts` supervises),
@@ -152,6 +153,9 @@ pub enum GsColour {
     Regressed,
     /// The source pixel's colour plus the head's correction, `clamp(I_s + x_c, 0, 1)`.
     Source,
+    /// The source pixel's own colour, uncorrected (`I_s`): the head learns where the
+    /// Gaussians go, not what colour they are.
+    Pixel,
     /// Appearance flow: the Gaussians carry their source pixel's coordinates; the rendered
     /// coordinates (normalised by the coverage) sample the source image bilinearly, and
     /// `I_gs = alpha * I_s(uv) + (1 - alpha) * bg`. Splatting blurs the flow, not the colours,
@@ -325,6 +329,7 @@ impl GaussianHead {
         let colours = match self.colour {
             GsColour::Regressed => sigmoid(x_c),
             GsColour::Source => (source_image.clone() + x_c).clamp(0.0, 1.0),
+            GsColour::Pixel => source_image.clone(),
             // The flow carries the colours; the Gaussians keep the source's for the PLY.
             GsColour::Flow => source_image.clone(),
         };
@@ -489,6 +494,42 @@ mod tests {
         assert!(g.iter().all(|v| v.is_finite()) && g.iter().any(|&v| v != 0.0));
         let g = values(&head.norm.gamma.val().grad(&grads).unwrap());
         assert!(g.iter().any(|&v| v != 0.0));
+    }
+
+    #[test]
+    fn pixel_colours_stay_the_source_pixels_whatever_the_head_predicts() {
+        let device = ndarray();
+        device.seed(8);
+        let mut head = GaussianHeadConfig::new(16, 8, 2.0)
+            .with_colour(GsColour::Pixel)
+            .with_upsample(2)
+            .init(&device);
+        // A trained head: non-zero weights everywhere, colour channels included.
+        head.linear.weight = head.linear.weight.clone().map(|w| {
+            w.clone().add(Tensor::random(
+                w.shape(),
+                Distribution::Normal(0.0, 0.5),
+                &device,
+            ))
+        });
+        let views = views(1, 16, 16);
+        let rays = plucker_rays(&views.source, &device);
+        let tokens = Tensor::<3>::random([1, 4, 16], Distribution::Normal(0.0, 1.0), &device);
+        let image = Tensor::<4>::random([1, 3, 16, 16], Distribution::Uniform(0.0, 1.0), &device);
+        let out = head.forward(tokens, pixels(&image, &rays), &views, 16, 16);
+        let colours = values(&out.gaussians.features);
+        let source = values(&image);
+        for i in 0..256 {
+            for c in 0..3 {
+                assert_eq!(colours[i * 3 + c], source[c * 256 + i]);
+            }
+        }
+        // The rest of the Gaussians did move: the head is not idle.
+        assert!(
+            values(&out.gaussians.opacity_logits)
+                .iter()
+                .any(|&x| x != 0.0)
+        );
     }
 
     #[test]

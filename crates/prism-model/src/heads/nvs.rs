@@ -68,15 +68,15 @@ impl NvsHeadConfig {
                 self.width,
                 3 * values_per_channel(self.patch_size, self.upsample),
             )
-                .with_bias(false)
-                .with_initializer(match self.output {
-                    NvsOutput::Direct => Initializer::Normal {
-                        mean: 0.0,
-                        std: self.init_std,
-                    },
-                    NvsOutput::Residual => Initializer::Zeros,
-                })
-                .init(device),
+            .with_bias(false)
+            .with_initializer(match self.output {
+                NvsOutput::Direct => Initializer::Normal {
+                    mean: 0.0,
+                    std: self.init_std,
+                },
+                NvsOutput::Residual => Initializer::Zeros,
+            })
+            .init(device),
             render_input: self.sees_render.then(|| {
                 let linear = |inputs: usize| {
                     LinearConfig::new(inputs, self.width)

@@ -14,12 +14,17 @@ use prism_remote::{
 
 const TOKEN: &str = "test-token";
 
-/// Serves the flex device with `fingerprint` over `transport` on a free loopback port, in a
-/// thread of this process; returns the `--devices` entry it announced.
+/// Serves the flex device with `fingerprint` over `transport` on a free port (loopback; every
+/// interface for Iroh, which binds no less), in a thread of this process; returns the
+/// `--devices` entry it announced, dialling loopback.
 fn start(transport: TransportKind, fingerprint: Fingerprint) -> String {
     let (send, receive) = mpsc::channel();
+    let listen = match transport {
+        TransportKind::Iroh => "0.0.0.0:0",
+        TransportKind::WebSocket => "127.0.0.1:0",
+    };
     let options = ServeOptions {
-        listen: "127.0.0.1:0".parse().unwrap(),
+        listen: listen.parse().unwrap(),
         transport,
         token: TOKEN.into(),
         devices: vec![Device::flex()],
@@ -36,7 +41,15 @@ fn start(transport: TransportKind, fingerprint: Fingerprint) -> String {
             panic!("serve failed: {e}");
         }
     });
-    receive.recv_timeout(Duration::from_secs(30)).unwrap()
+    let entry: String = receive.recv_timeout(Duration::from_secs(30)).unwrap();
+    // Iroh's entry names this machine by its host name; the test dials loopback.
+    match entry.rsplit_once('@') {
+        Some((node, address)) => {
+            let port = address.rsplit(':').next().unwrap();
+            format!("{node}@127.0.0.1:{port}")
+        }
+        None => entry,
+    }
 }
 
 fn connect_to(entry: &str, token: &str, ours: &Fingerprint) -> Result<Vec<Device>, String> {
