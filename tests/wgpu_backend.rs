@@ -2,7 +2,8 @@
 //! included) and one training step (teacher objective, backward, SGD update) from the same
 //! weights on the same batch, which on wgpu reads nothing back to the host in its geometry
 //! operations (the device kernels) where on flex it does (the host path), nor in a training
-//! step of the small config.
+//! step of the small config. And on wgpu, the same forward pass and training step through
+//! prism's flash-attention kernels agree with the default attention (Burn's).
 //!
 //! Runs in the default build (the `wgpu` feature) on a machine with a Vulkan / Metal / DX12
 //! adapter; Mesa's software Vulkan (lavapipe, Debian package `mesa-vulkan-drivers`) is enough, and `.ci/run`
@@ -25,7 +26,8 @@ use prism_core::reads::geometry_host_reads;
 use prism_data::{
     DatasetReader, PrismBatch, PrismBatcher, Sample, SampleDataset, SplitKind, TargetSelection,
 };
-use prism_model::{Prism, protocol_views};
+use prism_kernels::GpuAttention;
+use prism_model::{Prism, Views, protocol_views};
 use prism_synth::synthetic_dataset_dir_in;
 use prism_train::{StepLoss, TeacherLoss, TrainingConfig};
 
@@ -75,89 +77,157 @@ fn relative_error(a: &[f32], b: &[f32]) -> f32 {
         / scale
 }
 
+/// The tiny model's outputs for a batch of two random source images at 32 px: the NVS image,
+/// block 4's hidden states and the 3DGS render `I_gs`, from the same weights on any device.
+struct TinyForward {
+    model: Prism,
+    image: Tensor<4>,
+    views: Views,
+}
+
+impl TinyForward {
+    fn new(seed: u64) -> Self {
+        let flex = Device::flex();
+        flex.seed(seed);
+        let model = tiny().model.init(&flex);
+        let res = 32;
+        flex.seed(seed + 1);
+        let image = Tensor::<4>::random(
+            [2, 3, res, res],
+            burn::tensor::Distribution::Uniform(0.0, 1.0),
+            &flex,
+        );
+        let views = protocol_views(2, res);
+        Self {
+            model,
+            image,
+            views,
+        }
+    }
+
+    /// `[image, hidden 4, I_gs]` on `device`.
+    fn run(&self, device: &Device) -> [Vec<f32>; 3] {
+        let model = self.model.clone().to_device(device);
+        let rays = |cams| prism_core::rays::plucker_rays(cams, device);
+        let out = model.forward_views(
+            self.image.clone().to_device(device),
+            rays(&self.views.source),
+            rays(&self.views.target),
+            &self.views,
+            &[1, 4],
+        );
+        let gs = out.gaussians.expect("tiny has the 3DGS head").image;
+        [values(&out.image), values(&out.hidden[1]), values(&gs)]
+    }
+}
+
+/// Asserts that each output of `got` is within `tolerance` (relative) of `want`.
+fn assert_outputs_close(what: &str, got: &[Vec<f32>; 3], want: &[Vec<f32>; 3], tolerance: f32) {
+    for (i, name) in ["image", "hidden 4", "I_gs"].into_iter().enumerate() {
+        let err = relative_error(&got[i], &want[i]);
+        assert!(err < tolerance, "{what}, {name}: relative error {err}");
+    }
+}
+
+/// The tiny model's forward pass on wgpu against flex, and on wgpu through prism's flash
+/// kernels (`GpuAttention::Flash`) against the default attention (Burn's fused op). The two
+/// wgpu passes must differ in some bit, or the flash kernels did not run.
 #[test]
 #[cfg_attr(not(wgpu_adapter), ignore = "no wgpu adapter on this machine")]
-fn tiny_forward_on_wgpu_matches_flex() {
+fn tiny_forward_on_wgpu_matches_flex_through_either_attention() {
     let _alone = common::device_alone();
     let Some(wgpu) = common::wgpu_device() else {
         return;
     };
-    let flex = Device::flex();
-    flex.seed(5);
-    let config = tiny();
-    let model = config.model.init(&flex);
-    let res = 32;
-    let views = protocol_views(2, res);
-    flex.seed(6);
-    let image = Tensor::<4>::random(
-        [2, 3, res, res],
-        burn::tensor::Distribution::Uniform(0.0, 1.0),
-        &flex,
-    );
-    let run = |model: &Prism, device: &Device| {
-        let rays = |cams| prism_core::rays::plucker_rays(cams, device);
-        let out = model.forward_views(
-            image.clone().to_device(device),
-            rays(&views.source),
-            rays(&views.target),
-            &views,
-            &[1, 4],
+    assert_eq!(GpuAttention::current(), GpuAttention::Burn, "the default");
+    let forward = TinyForward::new(5);
+    let want = forward.run(&Device::flex());
+    let got = forward.run(&wgpu);
+    assert_outputs_close("wgpu against flex", &got, &want, 1e-3);
+    let flash = GpuAttention::Flash.run(|| forward.run(&wgpu));
+    assert_outputs_close("flash against Burn's attention op", &flash, &got, 1e-4);
+    assert!(flash[1] != got[1], "the flash kernels did not run");
+}
+
+/// One teacher step of `config` (forward, objective, backward, plain SGD at learning rate 1)
+/// from the weights `initial`, on `device`, on a batch of `samples`: the loss, every weight
+/// after the step, and the geometry operations' reads from the host during the step.
+///
+/// The update is SGD's, `-lr g`, so it is the gradient itself: a gradient wrong by a factor
+/// `k` gives a relative error of `|k - 1|` in [`assert_same_updates`]. AdamW's first update,
+/// about `lr sign(g)`, would hide any positive factor.
+fn sgd_step(
+    config: &TrainingConfig,
+    (samples, background): &(Vec<Sample>, [f32; 3]),
+    initial: &Prism,
+    device: &Device,
+) -> (f32, Vec<Vec<f32>>, u64) {
+    let before = geometry_host_reads();
+    let ad = device.clone().autodiff();
+    let batch: PrismBatch = PrismBatcher.batch_samples(samples, &ad);
+    // Moved onto the autodiff device, `train` turns the parameters' gradients on.
+    let model = initial.clone().to_device(&ad).train();
+    let loss = TeacherLoss::new(config, *background, None, &ad).expect("objective");
+    let terms = loss.loss(&model, &batch, 0);
+    let total = values(&terms.total.clone().inner())[0];
+    let grads = GradientsParams::from_grads(terms.total.backward(), &model);
+    let mut optim = SgdConfig::new().init();
+    let model = optim.step(1.0, model, grads);
+    let _ = device.sync();
+    let reads = geometry_host_reads() - before;
+    (total, parameters(&model.valid()), reads)
+}
+
+/// Asserts that two steps from the weights `before` moved every weight alike: each
+/// parameter's update in `got` within `tolerance` of the largest update in `want` (comparing
+/// updates, not weights, so that a small update is not hidden by a large weight). Returns the
+/// number of parameters that moved.
+fn assert_same_updates(
+    what: &str,
+    got: &[Vec<f32>],
+    want: &[Vec<f32>],
+    before: &[Vec<f32>],
+    tolerance: f32,
+) -> usize {
+    let mut moved = 0;
+    for (i, ((g, w), b)) in got.iter().zip(want).zip(before).enumerate() {
+        let update_g: Vec<f32> = g.iter().zip(b).map(|(x, y)| x - y).collect();
+        let update_w: Vec<f32> = w.iter().zip(b).map(|(x, y)| x - y).collect();
+        if update_w.iter().any(|u| u.abs() > 1e-6) {
+            moved += 1;
+        }
+        let err = relative_error(&update_g, &update_w);
+        assert!(
+            err < tolerance,
+            "{what}: parameter {i}'s update differs by {err} (relative)"
         );
-        let gs = out.gaussians.expect("tiny has the 3DGS head").image;
-        (values(&out.image), values(&out.hidden[1]), values(&gs))
-    };
-    let want = run(&model, &flex);
-    let got = run(&model.clone().to_device(&wgpu), &wgpu);
-    for (name, g, w) in [
-        ("image", &got.0, &want.0),
-        ("hidden 4", &got.1, &want.1),
-        ("I_gs", &got.2, &want.2),
-    ] {
-        let err = relative_error(g, w);
-        assert!(err < 1e-3, "{name}: relative error {err}");
     }
+    moved
 }
 
 /// One teacher step (forward, objective, backward, plain SGD) on a batch of the tiny synthetic
-/// dataset, from the same weights: the same loss and the same update of every weight; the
-/// step's geometry operations read from the host on flex (so the counter is live), never on
-/// wgpu, nor in a step of the small config.
-///
-/// The update is SGD's, `-lr g`, so it is the gradient itself: a gradient wrong by a factor
-/// `k` gives a relative error of `|k - 1|` (1 for a planted factor of 2, against the tolerance
-/// of 2e-2). AdamW's first update, about `lr sign(g)`, would hide any positive factor.
+/// dataset, from the same weights: the same loss and the same update of every weight (within
+/// 2e-2: a planted factor of 2 in a gradient gives 1); the step's geometry operations read
+/// from the host on flex (so the counter is live), never on wgpu, nor in a step of the small
+/// config. On wgpu, the step through prism's flash kernels (their backward pass included)
+/// against the default one (matmul-softmax-matmul): the same loss and updates, yet different
+/// in some bit, or the flash kernels did not run.
 #[test]
 #[cfg_attr(not(wgpu_adapter), ignore = "no wgpu adapter on this machine")]
-fn one_training_step_on_wgpu_matches_flex_without_geometry_reads() {
+fn one_training_step_on_wgpu_matches_flex_through_either_attention_without_geometry_reads() {
     let _alone = common::device_alone();
     let Some(wgpu) = common::wgpu_device() else {
         return;
     };
     let config = tiny();
     assert!(config.model.smplx_branch && config.model.point_branch);
-    let (samples, background) = samples(&config, 2, 32);
+    let batch = samples(&config, 2, 32);
     let flex = Device::flex();
     flex.seed(7);
     let initial = config.model.init(&flex);
 
-    let step = |device: &Device| {
-        let before = geometry_host_reads();
-        let ad = device.clone().autodiff();
-        let batch: PrismBatch = PrismBatcher.batch_samples(&samples, &ad);
-        // Moved onto the autodiff device, `train` turns the parameters' gradients on.
-        let model = initial.clone().to_device(&ad).train();
-        let loss = TeacherLoss::new(&config, background, None, &ad).expect("objective");
-        let terms = loss.loss(&model, &batch, 0);
-        let total = values(&terms.total.clone().inner())[0];
-        let grads = GradientsParams::from_grads(terms.total.backward(), &model);
-        let mut optim = SgdConfig::new().init();
-        let model = optim.step(1.0, model, grads);
-        let _ = device.sync();
-        let reads = geometry_host_reads() - before;
-        (total, parameters(&model.valid()), reads)
-    };
-    let (loss_flex, params_flex, reads_flex) = step(&flex);
-    let (loss_wgpu, params_wgpu, reads_wgpu) = step(&wgpu);
+    let (loss_flex, params_flex, reads_flex) = sgd_step(&config, &batch, &initial, &flex);
+    let (loss_wgpu, params_wgpu, reads_wgpu) = sgd_step(&config, &batch, &initial, &wgpu);
     assert!(reads_flex > 0, "the host path counts its reads");
     assert_eq!(
         reads_wgpu, 0,
@@ -169,19 +239,30 @@ fn one_training_step_on_wgpu_matches_flex_without_geometry_reads() {
         "loss {loss_wgpu} on wgpu vs {loss_flex} on flex"
     );
     let before = parameters(&initial);
-    let mut moved = 0;
-    for ((w, f), b) in params_wgpu.iter().zip(&params_flex).zip(&before) {
-        // Compare the updates (the gradients, at lr 1), not the weights, so that a small
-        // update is not hidden by a large weight.
-        let update_w: Vec<f32> = w.iter().zip(b).map(|(x, y)| x - y).collect();
-        let update_f: Vec<f32> = f.iter().zip(b).map(|(x, y)| x - y).collect();
-        if update_f.iter().any(|u| u.abs() > 1e-6) {
-            moved += 1;
-        }
-        let err = relative_error(&update_w, &update_f);
-        assert!(err < 2e-2, "update differs by {err} (relative)");
-    }
+    let moved = assert_same_updates(
+        "wgpu against flex",
+        &params_wgpu,
+        &params_flex,
+        &before,
+        2e-2,
+    );
     assert!(moved > 10, "only {moved} parameters moved");
+
+    let (loss_flash, params_flash, reads_flash) =
+        GpuAttention::Flash.run(|| sgd_step(&config, &batch, &initial, &wgpu));
+    assert_eq!(reads_flash, 0, "geometry reads of the step through flash");
+    assert!(
+        (loss_flash - loss_wgpu).abs() <= 1e-5 * loss_wgpu.abs(),
+        "loss {loss_flash} through the flash kernels vs {loss_wgpu} through matmul-softmax-matmul"
+    );
+    assert_same_updates(
+        "flash against matmul-softmax-matmul",
+        &params_flash,
+        &params_wgpu,
+        &before,
+        1e-3,
+    );
+    assert!(params_flash != params_wgpu, "the flash kernels did not run");
 
     // Nor does a step of the small config (wider branches and heads), on the tiny dataset's
     // people (the reads do not depend on the data). In this test, not one of its own: both

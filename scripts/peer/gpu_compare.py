@@ -1,4 +1,4 @@
-"""prism beside the same model in PyTorch on one NVIDIA GPU, in one command (issue 35, part 5).
+"""prism beside the same model in PyTorch on one NVIDIA GPU, in one command (issues 35 and 45).
 
 For a machine with the GPU, its driver and PyTorch, but no Rust toolchain and no network:
 
@@ -8,22 +8,33 @@ For a machine with the GPU, its driver and PyTorch, but no Rust toolchain and no
 2. Times the PyTorch model (torch_backbone.py: `F.scaled_dot_product_attention`) at the paper
    backbone's shapes (width 768, 12 heads, 12 + 24 blocks, patch 8, no geometry parts) with
    bf16 autocast, TF32 and f32.
-3. Times `prism bench --backend wgpu` on the same model with the blocks in f32, f16 and bf16.
-4. Prints the table: teacher, student and all-linear forward of one pair at 512 px, the
-   teacher's training step at 256 px (median ms), with prism / PyTorch bf16, and the peak
-   memory; then, each optional, the paper config's teacher and student FPS at 512 px (geometry
-   included; `configs/paper.toml`) and `prism quickstart --backend wgpu`, timed, with its
-   phase table. Writes everything to OUT/gpu_compare.md and OUT/gpu_compare.json, and the
-   commands' output to OUT/log.txt.
+3. Times `prism bench --backend wgpu` on the same model through each attention path
+   (`PRISM_ATTENTION`): `burn`, Burn's attention op (for training Burn decomposes it into
+   matmul, softmax, matmul, the `unfused` path, so that path's training step is not timed
+   twice); `unfused`, prism's matmul-softmax-matmul; `flash`, prism's flash kernels; each with
+   the blocks in f32, bf16 and f16: the teacher's forward pass of one pair at 512 px (and the
+   student's and the all-linear model's once per precision, on the `burn` path: linear
+   attention takes none of the paths) and the teacher's training step at 256 px, median ms and
+   peak memory.
+4. Runs the paper config (`configs/paper.toml`, geometry included) through the flash kernels:
+   the teacher's and the student's FPS at 512 px, and the teacher's training step at its own
+   resolution, 512 px, one (source, target) pair per step, with its peak memory: the paper's
+   model must train at 512 px on one 80 GB card (stored scores alone would take about 116 GB).
+5. Optionally, `prism quickstart --backend wgpu`, timed, with its phase table.
 
-The stages run one after the other (never two at once: they share the card), each within what
-is left of --budget seconds; one stopped at the budget or failing is reported and the next
-goes on. --dry-run does the same on the CPU at tiny shapes (PyTorch on the CPU, prism on flex)
-to check the whole flow on a machine without a GPU.
+It writes the tables to OUT/gpu_compare.md, everything to OUT/gpu_compare.json and the
+commands' output to OUT/log.txt. The stages run one after the other (never two at once: they
+share the card), most wanted first (PyTorch bf16, the paths in the first precision, the
+paper config, the other precisions, PyTorch TF32 and f32, the quick start), each within what is
+left of --budget seconds (450 by default, so that the whole command ends within 8 minutes); one
+stopped at the budget or failing is reported and the next goes on. --dry-run does the same on
+the CPU at tiny shapes (PyTorch on the CPU, prism on flex, where every path runs prism's fused
+CPU kernel) to check the whole flow on a machine without a GPU.
 
 usage (from the repository root):
     python3 scripts/peer/gpu_compare.py --pack gpu-pack --out OUT [--budget 450]
-        [--no-paper] [--no-quickstart] [--iters 5] [--warmup 2] [--prism FILE] [--dry-run]
+        [--paths burn,unfused,flash] [--precisions f32,bf16,f16] [--paper-precisions f32]
+        [--no-paper] [--no-quickstart] [--iters 3] [--warmup 1] [--prism FILE] [--dry-run]
 """
 import argparse
 import dataclasses
@@ -54,8 +65,13 @@ DRIVER_LIB_DIRS = ["/usr/local/nvidia/lib64", "/usr/local/nvidia/lib",
                    "/usr/lib/x86_64-linux-gnu", "/usr/lib64", "/usr/lib"]
 # The paper's A6000 figures, the targets of the paper config's rows.
 PAPER_FPS = {"teacher": 8.8, "student": 24.0}
+# PyTorch's precisions; the first, the reference of the ratios, is timed first.
 TORCH_DTYPES = ["bf16", "tf32", "f32"]
+# prism's attention paths (`PRISM_ATTENTION`), as the tables name them.
+PATHS = {"burn": "Burn's attention op", "unfused": "prism unfused", "flash": "prism flash"}
 MIB = 1024 * 1024
+# The card the paper config must train on at 512 px.
+TARGET_CARD_BYTES = 80 * 1000 ** 3
 
 
 @dataclasses.dataclass
@@ -71,7 +87,7 @@ class Plan:
     stage_one: int
     stage_three: int
     group: int
-    paper_res: int         # the paper config's rows' resolution
+    paper_res: int         # the paper config's rows' resolution (forward and training)
     quickstart: list       # arguments of `prism quickstart` besides --backend and --out
     budget: float          # default seconds for the whole run
 
@@ -167,6 +183,27 @@ def backbone_config(plan, path):
     header = f"# Written by gpu_compare.py from {os.path.basename(CONFIG)}: {values}\n"
     with open(path, "w") as f:
         f.write(header + set_keys(text, values, CONFIG))
+    return path
+
+
+def paper_config(plan, path):
+    """Writes the paper config to `path` with its training step cut to what the memory figure
+    needs: one (source, target) pair per step (the scores a pair would store, 12 heads x 36
+    blocks x 8192^2 floats, are the 116 GB), at plan.paper_res, on a synthetic dataset of
+    two people (one held out) rendered without supersampling (its speed, not its looks,
+    matters here), one validation view."""
+    with open(PAPER_CONFIG) as f:
+        text = f.read()
+    values = {
+        "model": {"resolution": plan.paper_res},
+        "train": {"batch_size": 1, "targets_per_sample": 1, "validation_views": 1,
+                  "data_workers": 2},
+        "data": {"subjects": 2, "test_fraction": 0.5, "resolution": plan.paper_res,
+                 "supersample": 1},
+    }
+    header = f"# Written by gpu_compare.py from {os.path.basename(PAPER_CONFIG)}: {values}\n"
+    with open(path, "w") as f:
+        f.write(header + set_keys(text, values, PAPER_CONFIG))
     return path
 
 
@@ -286,11 +323,11 @@ def gpu_name():
     return subprocess.run(query, capture_output=True, text=True).stdout.strip() or None
 
 
-def measure_torch(run, plan, args, shapes):
-    """The PyTorch rows per dtype: {dtype: {(model, res): row}}."""
+def measure_torch(run, plan, args, shapes, dtypes):
+    """The PyTorch rows of `dtypes`: {dtype: {(model, res): row}}."""
     threads = os.cpu_count() if plan.device == "cuda" else 2
     results = {}
-    for dtype in TORCH_DTYPES:
+    for dtype in dtypes:
         rows = run.stage(f"PyTorch {plan.device} {dtype}", lambda left, d=dtype: run_torch(
             shapes, f"{plan.forward_res},{plan.train_res}", threads, args.warmup, args.iters,
             plan.train_res, args.train_steps, ["--device", plan.device, "--dtype", d],
@@ -299,27 +336,42 @@ def measure_torch(run, plan, args, shapes):
     return results
 
 
-def measure_prism(run, plan, args, prism, config, env):
-    """The prism rows per block precision: {precision: {(model, res): row}}."""
+def with_path(env, path):
+    """`env` with PRISM_ATTENTION set to `path`."""
+    return dict(env, PRISM_ATTENTION=path)
+
+
+def measure_prism(run, plan, args, prism, config, env, precision):
+    """The prism rows of the blocks in `precision`, one `prism bench` per attention path of
+    --paths: {"path precision": {(model, res): row}}. The teacher's forward pass on every
+    path, the student and the all-linear model on `burn`'s; the training step on every path
+    but `burn`'s (which trains through `unfused`'s ops) unless `burn` is the only one."""
     results = {}
-    for precision in args.precisions.split(","):
-        rows = run.stage(f"prism {plan.backend} {precision}", lambda left, p=precision: run_prism(
-            prism, config, str(plan.forward_res), plan.backend, args.warmup, args.iters,
-            args.train_steps, ["--precision", p], env, timeout=left, log=run.log))
-        results[precision] = rows or {}
+    paths = args.paths.split(",")
+    for path in paths:
+        models = "teacher,student,linear" if path == "burn" else "teacher"
+        train = 0 if path == "burn" and len(paths) > 1 else args.train_steps
+        extra = ["--models", models, "--precision", precision]
+        rows = run.stage(f"prism {plan.backend} {path} {precision}",
+                         lambda left, e=extra, t=train, p=path: run_prism(
+                             prism, config, str(plan.forward_res), plan.backend, args.warmup,
+                             args.iters, t, e, with_path(env, p), timeout=left, log=run.log))
+        results[f"{path} {precision}"] = rows or {}
     return results
 
 
-def measure_paper(run, plan, args, prism, env):
-    """The paper config's teacher and student at plan.paper_res (geometry included), per
-    precision of --paper-precisions: {precision: {(model, res): row}}."""
+def measure_paper(run, plan, args, prism, config, env):
+    """The paper config through the flash kernels, per precision of --paper-precisions: the
+    teacher's and the student's forward pass and the teacher's training step, all at
+    plan.paper_res: {precision: {(model, res): row}}."""
     results = {}
     for precision in args.paper_precisions.split(","):
         extra = ["--models", "teacher,student", "--precision", precision]
-        rows = run.stage(f"paper config, prism {plan.backend} {precision}",
+        rows = run.stage(f"paper config, prism {plan.backend} flash {precision}",
                          lambda left, e=extra: run_prism(
-                             prism, PAPER_CONFIG, str(plan.paper_res), plan.backend,
-                             args.warmup, args.iters, 0, e, env, timeout=left, log=run.log))
+                             prism, config, str(plan.paper_res), plan.backend, args.warmup,
+                             args.iters, args.paper_train_steps, e, with_path(env, "flash"),
+                             timeout=left, log=run.log), least=30)
         results[precision] = rows or {}
     return results
 
@@ -345,59 +397,74 @@ def measure_quickstart(run, plan, prism, env, work):
     return run.stage(f"prism quickstart --backend {plan.backend}", go, least=60)
 
 
-def speed_rows(plan):
-    """The table's rows: (label, key of the bench and PyTorch rows)."""
-    f, t = plan.forward_res, plan.train_res
-    return [(f"teacher forward, {f} px", ("teacher", f)),
-            (f"student forward, {f} px", ("student", f)),
-            (f"all-linear forward, {f} px", ("linear", f)),
-            (f"teacher training step, {t} px", ("train_step", t))]
-
-
-def columns(plan, torch_rows, prism_rows):
-    """The table's columns: (name, rows by key), PyTorch's first."""
-    names = {"bf16": "PyTorch bf16", "tf32": "PyTorch TF32", "f32": "PyTorch f32"}
-    cols = [(names[d], torch_rows[d]) for d in TORCH_DTYPES]
-    return cols + [(f"prism {plan.backend} {p}", rows) for p, rows in prism_rows.items()]
-
-
 def cell(row, key, scale=1.0, digits=1):
     value = (row or {}).get(key)
     return "-" if value is None else f"{value / scale:.{digits}f}"
 
 
-def speed_table(plan, torch_rows, prism_rows):
-    """Markdown tables of the median ms (with prism / PyTorch bf16) and of the peak memory."""
-    cols = columns(plan, torch_rows, prism_rows)
-    prism_cols = cols[len(TORCH_DTYPES):]
-    head = [c[0] for c in cols] + [f"{name} / PyTorch bf16" for name, _ in prism_cols]
-    lines = ["| row (median ms) | " + " | ".join(head) + " |",
-             "|---|" + "---:|" * len(head)]
-    memory = ["| row (peak MiB) | " + " | ".join(c[0] for c in cols) + " |",
-              "|---|" + "---:|" * len(cols)]
-    for label, key in speed_rows(plan):
-        base = torch_rows["bf16"].get(key, {}).get("ms")
-        values = [cell(rows.get(key), "ms") for _, rows in cols]
-        for _, rows in prism_cols:
-            ms = rows.get(key, {}).get("ms")
-            values.append(f"{ms / base:.2f}x" if ms and base else "-")
-        lines.append(f"| {label} | " + " | ".join(values) + " |")
-        mem = [cell(rows.get(key), "peak_mem_bytes", MIB, 0) for _, rows in cols]
-        memory.append(f"| {label} | " + " | ".join(mem) + " |")
-    return "\n".join(lines) + "\n\nPeak memory: PyTorch's `torch.cuda.max_memory_allocated()`, " \
-        "prism's memory pools (an upper bound of what is in use).\n\n" + "\n".join(memory) + "\n"
+def ratio(row, base, key="ms"):
+    """`row`'s `key` over `base`'s, as `1.23x`, or `-`."""
+    ours, theirs = (row or {}).get(key), (base or {}).get(key)
+    return f"{ours / theirs:.2f}x" if ours and theirs else "-"
+
+
+def torch_table(plan, torch_rows):
+    """Markdown table of the PyTorch rows: median ms and peak memory."""
+    f, t = plan.forward_res, plan.train_res
+    lines = [f"| PyTorch | teacher {f} px ms | student {f} px ms | all-linear {f} px ms | "
+             f"training step {t} px ms | training peak MiB |", "|---|" + "---:|" * 5]
+    for dtype, rows in torch_rows.items():
+        step = rows.get(("train_step", t))
+        lines.append(f"| {dtype} | " + " | ".join(
+            [cell(rows.get((m, f)), "ms") for m in ("teacher", "student", "linear")]
+            + [cell(step, "ms"), cell(step, "peak_mem_bytes", MIB, 0)]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def prism_table(plan, torch_rows, prism_rows):
+    """Markdown table of prism's rows, one per (attention path, block precision): median ms,
+    the ratio to PyTorch bf16, and peak memory (the memory pools' reservation)."""
+    f, t = plan.forward_res, plan.train_res
+    base = torch_rows.get("bf16", {})
+    lines = [f"| attention | blocks | teacher {f} px ms | / PyTorch bf16 | student {f} px ms | "
+             f"all-linear {f} px ms | forward peak MiB | training step {t} px ms | "
+             "/ PyTorch bf16 | training peak MiB |", "|---|---|" + "---:|" * 8]
+    for name, rows in prism_rows.items():
+        path, precision = name.split(" ")
+        teacher, step = rows.get(("teacher", f)), rows.get(("train_step", t))
+        lines.append(f"| {PATHS[path]} | {precision} | " + " | ".join([
+            cell(teacher, "ms"), ratio(teacher, base.get(("teacher", f))),
+            cell(rows.get(("student", f)), "ms"), cell(rows.get(("linear", f)), "ms"),
+            cell(teacher, "peak_mem_bytes", MIB, 0), cell(step, "ms"),
+            ratio(step, base.get(("train_step", t))),
+            cell(step, "peak_mem_bytes", MIB, 0)]) + " |")
+    return ("\n".join(lines) + "\n\nPeak memory: PyTorch's `torch.cuda.max_memory_allocated()`; "
+            "prism's `peak_mem` (on a GPU its memory pools' reservation over the run, an upper "
+            "bound of what is in use; on the CPU the heap's peak). `burn`'s training step is "
+            "`unfused`'s (Burn decomposes its op under autodiff).\n")
 
 
 def paper_table(plan, paper_rows):
-    """Markdown table of the paper config's FPS beside the paper's A6000 figures."""
-    lines = ["| paper config (geometry included) | " + " | ".join(
-        f"prism {plan.backend} {p} FPS" for p in paper_rows) + " | paper (A6000) FPS |",
-        "|---|" + "---:|" * (len(paper_rows) + 1)]
-    for model, target in PAPER_FPS.items():
-        key = (model, plan.paper_res)
-        fps = [cell(rows.get(key), "fps", digits=2) for rows in paper_rows.values()]
-        lines.append(f"| {model}, {plan.paper_res} px | " + " | ".join(fps) + f" | {target} |")
-    return "\n".join(lines) + "\n"
+    """Markdown table of the paper config through the flash kernels: the FPS beside the
+    paper's A6000 figures, and the training step's time and peak memory."""
+    res = plan.paper_res
+    lines = [f"| paper config, flash attention, blocks in | teacher {res} px FPS | "
+             f"student {res} px FPS | training step {res} px s | training peak GiB | "
+             "fits 80 GB |", "|---|" + "---:|" * 5]
+    for precision, rows in paper_rows.items():
+        step = rows.get(("train_step", res)) or {}
+        peak = step.get("peak_mem_bytes")
+        fits = "-" if peak is None else ("yes" if peak <= TARGET_CARD_BYTES else "no")
+        lines.append(f"| {precision} | " + " | ".join([
+            cell(rows.get(("teacher", res)), "fps", digits=2),
+            cell(rows.get(("student", res)), "fps", digits=2),
+            cell(step, "ms", 1000, 2), cell(step, "peak_mem_bytes", 1024 ** 3, 1), fits])
+            + " |")
+    targets = ", ".join(f"{m} {fps} FPS" for m, fps in PAPER_FPS.items())
+    return ("\n".join(lines) + f"\n\nThe paper (A6000): {targets}. The training step is one "
+            "(source, target) pair (geometry, 3DGS and LPIPS included, AdamW); its peak is "
+            "prism's `peak_mem` over the whole short run (on a GPU the memory pools' "
+            "reservation).\n")
 
 
 def json_rows(results):
@@ -412,7 +479,7 @@ def report(run, plan, context, torch_rows, prism_rows, paper_rows, quickstart):
              f"Command: `{context['command']}`. Backbone: width {plan.width}, {plan.heads} "
              f"heads, {plan.stage_one} + {plan.stage_three} blocks, patch 8, no geometry "
              f"parts; PyTorch {context['torch']}.\n",
-             speed_table(plan, torch_rows, prism_rows)]
+             torch_table(plan, torch_rows), prism_table(plan, torch_rows, prism_rows)]
     if paper_rows is not None:
         parts.append(paper_table(plan, paper_rows))
     if quickstart:
@@ -451,21 +518,32 @@ def parse_args():
                     help="folder of gpu_compare.md, gpu_compare.json and log.txt")
     ap.add_argument("--budget", type=float,
                     help="seconds for everything [default: 450; 900 with --dry-run]")
-    ap.add_argument("--warmup", type=int, default=2, help="untimed runs before timing")
-    ap.add_argument("--iters", type=int, default=5, help="timed runs (the median is reported)")
-    ap.add_argument("--train-steps", type=int, default=6,
-                    help="timed training steps on each side (after 2 warm-up steps)")
-    ap.add_argument("--precisions", default="f32,f16,bf16",
-                    help="prism's block precisions to time (comma-separated)")
-    ap.add_argument("--paper-precisions", default="f32,f16",
-                    help="block precisions of the paper config's rows")
+    ap.add_argument("--warmup", type=int, default=1, help="untimed runs before timing")
+    ap.add_argument("--iters", type=int, default=3, help="timed runs (the median is reported)")
+    ap.add_argument("--train-steps", type=int, default=4,
+                    help="training steps on each side (the median of those after 2 warm-up "
+                    "steps)")
+    ap.add_argument("--paths", default="burn,unfused,flash",
+                    help="prism's attention paths (PRISM_ATTENTION) to time (comma-separated)")
+    ap.add_argument("--precisions", default="f32,bf16,f16",
+                    help="prism's block precisions to time (comma-separated; the first is "
+                    "timed before the paper config, the others after)")
+    ap.add_argument("--paper-precisions", default="f32",
+                    help="block precisions of the paper config's rows (comma-separated)")
+    ap.add_argument("--paper-train-steps", type=int, default=3,
+                    help="the paper config's training steps (at least 3: the median of those "
+                    "after 2 warm-up steps)")
     ap.add_argument("--no-paper", dest="paper", action="store_false",
                     help="skip the paper config's FPS rows")
     ap.add_argument("--no-quickstart", dest="quickstart", action="store_false",
                     help="skip the timed quick start")
     ap.add_argument("--dry-run", action="store_true",
                     help="the whole flow on the CPU at tiny shapes (PyTorch on the CPU, flex)")
-    return ap.parse_args()
+    args = ap.parse_args()
+    unknown = set(args.paths.split(",")) - set(PATHS)
+    if unknown:
+        ap.error(f"--paths: {', '.join(sorted(unknown))} not among {', '.join(PATHS)}")
+    return args
 
 
 def main():
@@ -485,9 +563,16 @@ def main():
             env["PRISM_LPIPS_WEIGHTS"] = LPIPS_WEIGHTS
         config = backbone_config(plan, os.path.join(work, "backbone.toml"))
         shapes = backbone_shapes(config)
-        torch_rows = measure_torch(run, plan, args, shapes)
-        prism_rows = measure_prism(run, plan, args, prism, config, env)
-        paper_rows = measure_paper(run, plan, args, prism, env) if args.paper else None
+        first, *others = args.precisions.split(",")
+        torch_rows = measure_torch(run, plan, args, shapes, TORCH_DTYPES[:1])
+        prism_rows = measure_prism(run, plan, args, prism, config, env, first)
+        paper_rows = None
+        if args.paper:
+            paper = paper_config(plan, os.path.join(work, "paper.toml"))
+            paper_rows = measure_paper(run, plan, args, prism, paper, env)
+        for precision in others:
+            prism_rows.update(measure_prism(run, plan, args, prism, config, env, precision))
+        torch_rows.update(measure_torch(run, plan, args, shapes, TORCH_DTYPES[1:]))
         quickstart = measure_quickstart(run, plan, prism, env, work) if args.quickstart else None
         report(run, plan, context, torch_rows, prism_rows, paper_rows, quickstart)
 
