@@ -10,9 +10,17 @@
 //! leaves a complete hidden copy behind; the next write of the same file removes the copies of
 //! writers that are no longer running.
 //!
-//! Folders (a checkpoint) are replaced by [`replace_dir`]: written under a staged name, then
-//! moved in with the old folder put aside until the new one is in place, so a crash at any
-//! moment leaves a complete folder that [`recover_dir`] puts back under its name.
+//! Folders (a checkpoint) are replaced by [`replace_dir`]: written under a staged name, every
+//! file synced, then exchanged with the old folder in one rename (two renames where the file
+//! system cannot exchange), the old folder removed only once the new one is on the disk; a crash
+//! or a power cut at any moment leaves a complete folder that [`recover_dir`] makes the only one.
+
+mod replace;
+
+pub use replace::{
+    ASIDE_SUFFIX, Disk, ReplaceFs, STAGED_SUFFIX, recover_dir, replace_dir, replace_dir_with,
+    with_suffix,
+};
 
 use std::fs::{self, File};
 use std::io::{self, BufWriter, Write};
@@ -178,114 +186,23 @@ impl Drop for Staged {
     }
 }
 
-/// Syncs the folder of `path`, so that a rename into it survives a power cut. On Unix its error
-/// is returned; elsewhere (where a folder cannot be opened for syncing) the sync is skipped.
+/// Syncs the folder of `path`, so that a rename into it survives a power cut (see
+/// [`sync_folder`]).
 fn try_sync_folder(path: &Path) -> io::Result<()> {
+    sync_folder(folder(path))
+}
+
+/// Syncs the folder `dir`: its entries (the names created, renamed or removed in it) survive a
+/// power cut. On Unix its error is returned, naming the folder; elsewhere (where a folder cannot
+/// be opened for syncing) the sync is skipped.
+fn sync_folder(dir: &Path) -> io::Result<()> {
     if cfg!(unix) {
-        File::open(folder(path))?.sync_all()
+        File::open(dir)
+            .and_then(|f| f.sync_all())
+            .map_err(|e| io::Error::new(e.kind(), format!("syncing {}: {e}", dir.display())))
     } else {
         Ok(())
     }
-}
-
-/// Suffix of a folder being written, before [`replace_dir`] moves it in.
-pub const STAGED_SUFFIX: &str = ".partial";
-/// Suffix of the previous folder, put aside while [`replace_dir`] moves the new one in.
-pub const ASIDE_SUFFIX: &str = ".old";
-
-/// `dir` with `suffix` appended to its name (`step-2` -> `step-2.partial`).
-pub fn with_suffix(dir: &Path, suffix: &str) -> PathBuf {
-    let mut name = dir.as_os_str().to_owned();
-    name.push(suffix);
-    PathBuf::from(name)
-}
-
-/// The steps of [`replace_dir`], in order. A process killed between two of them leaves the
-/// file system as the earlier steps left it, and [`recover_dir`] makes that a complete `dir`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ReplaceStep {
-    /// The old `dir` (if any) is renamed to `dir.old`.
-    PutAside,
-    /// The staged folder is renamed to `dir`.
-    MoveIn,
-    /// The parent folder is synced, so that both renames survive a power cut.
-    SyncParent,
-    /// `dir.old` is removed.
-    RemoveAside,
-}
-
-impl ReplaceStep {
-    /// Every step, in the order [`replace_dir`] takes them.
-    pub const ALL: [Self; 4] = [
-        Self::PutAside,
-        Self::MoveIn,
-        Self::SyncParent,
-        Self::RemoveAside,
-    ];
-
-    /// Takes this step of replacing `dir` with the complete folder `staged`.
-    ///
-    /// # Errors
-    /// The I/O error of the rename, sync or removal.
-    pub fn run(self, staged: &Path, dir: &Path) -> io::Result<()> {
-        let aside = with_suffix(dir, ASIDE_SUFFIX);
-        match self {
-            Self::PutAside => {
-                if dir.exists() {
-                    // A leftover of an interrupted replace: `dir` is complete, so it is not needed.
-                    if aside.exists() {
-                        fs::remove_dir_all(&aside)?;
-                    }
-                    fs::rename(dir, &aside)?;
-                }
-                Ok(())
-            }
-            Self::MoveIn => fs::rename(staged, dir),
-            Self::SyncParent => try_sync_folder(dir),
-            Self::RemoveAside => match fs::remove_dir_all(&aside) {
-                Err(e) if e.kind() == io::ErrorKind::NotFound => Ok(()),
-                other => other,
-            },
-        }
-    }
-}
-
-/// Replaces the folder `dir` (if any) with the complete folder `staged`, so that at every
-/// moment a complete folder exists: `dir` itself, or the old one as `dir.old` until the new one
-/// is in (see [`ReplaceStep`]). After a crash, [`recover_dir`] restores `dir`.
-///
-/// # Errors
-/// The first failed step's I/O error (the folder sync's included).
-pub fn replace_dir(staged: &Path, dir: &Path) -> io::Result<()> {
-    ReplaceStep::ALL
-        .into_iter()
-        .try_for_each(|step| step.run(staged, dir))
-}
-
-/// Finishes or undoes a [`replace_dir`] of `dir` that a crash interrupted: with `dir` missing,
-/// the old folder put aside is renamed back; with `dir` present, the aside copy is removed.
-/// A staged folder (`dir.partial`) is removed either way. Returns whether anything was found.
-///
-/// # Errors
-/// I/O errors of the renames and removals.
-pub fn recover_dir(dir: &Path) -> io::Result<bool> {
-    let aside = with_suffix(dir, ASIDE_SUFFIX);
-    let staged = with_suffix(dir, STAGED_SUFFIX);
-    let mut found = false;
-    if aside.exists() {
-        found = true;
-        if dir.exists() {
-            fs::remove_dir_all(&aside)?;
-        } else {
-            fs::rename(&aside, dir)?;
-            try_sync_folder(dir)?;
-        }
-    }
-    if staged.exists() {
-        found = true;
-        fs::remove_dir_all(&staged)?;
-    }
-    Ok(found)
 }
 
 #[cfg(target_os = "linux")]
@@ -383,53 +300,6 @@ mod tests {
         let path = dir.path().join("no/such/a.txt");
         assert!(write_bytes(&path, b"x").is_err());
         assert!(!path.exists());
-    }
-
-    /// A folder holding one file, `v`, with `version` in it.
-    fn folder_version(dir: &Path, version: u32) {
-        fs::create_dir_all(dir).unwrap();
-        fs::write(dir.join("v"), version.to_string()).unwrap();
-    }
-
-    fn read_version(dir: &Path) -> u32 {
-        fs::read_to_string(dir.join("v")).unwrap().parse().unwrap()
-    }
-
-    /// A replace stopped after each of its steps (as a kill there leaves it) is recovered to a
-    /// complete folder: the old one until the new one is in, then the new one; nothing else is
-    /// left.
-    #[test]
-    fn a_replace_stopped_at_any_step_recovers_to_a_complete_folder() {
-        for stop in 0..=ReplaceStep::ALL.len() {
-            let root = tempfile::tempdir().unwrap();
-            let dir = root.path().join("step-2");
-            let staged = with_suffix(&dir, STAGED_SUFFIX);
-            folder_version(&dir, 1);
-            folder_version(&staged, 2);
-            for step in &ReplaceStep::ALL[..stop] {
-                step.run(&staged, &dir).unwrap();
-            }
-            let moved_in = stop >= 2;
-            assert_eq!(recover_dir(&dir).unwrap(), stop < ReplaceStep::ALL.len());
-            assert_eq!(
-                read_version(&dir),
-                if moved_in { 2 } else { 1 },
-                "stop {stop}"
-            );
-            assert_eq!(names(root.path()), ["step-2"], "stop {stop}");
-        }
-    }
-
-    #[test]
-    fn replacing_a_missing_folder_moves_the_new_one_in() {
-        let root = tempfile::tempdir().unwrap();
-        let dir = root.path().join("out");
-        let staged = with_suffix(&dir, STAGED_SUFFIX);
-        folder_version(&staged, 7);
-        replace_dir(&staged, &dir).unwrap();
-        assert_eq!(read_version(&dir), 7);
-        assert_eq!(names(root.path()), ["out"]);
-        assert!(!recover_dir(&dir).unwrap());
     }
 
     #[test]

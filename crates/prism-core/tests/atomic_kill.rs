@@ -1,4 +1,5 @@
-//! The atomic writers under SIGKILL.
+//! The atomic writers under SIGKILL, and a folder replace under injected failures and power
+//! cuts.
 //! - A child process rewrites one file in a loop through `prism_core::files::write_atomic` and
 //!   is killed at arbitrary moments; every time, the file is one complete version (the old one
 //!   or a new one), and nothing else is left in its folder but, when the kill fell between
@@ -6,6 +7,12 @@
 //! - A child process replaces one folder in a loop through `prism_core::files::replace_dir`
 //!   (a checkpoint's write) and is killed at arbitrary moments; every time, `recover_dir` leaves
 //!   the folder complete (its files of one version) and nothing beside it.
+//! - A folder replace fails at each of its calls, and a kill or a power cut follows
+//!   (`power_cut`): `recover_dir` always leaves a complete folder.
+
+#[cfg(unix)]
+#[path = "atomic_kill/power_cut.rs"]
+mod power_cut;
 
 use std::io::Write;
 use std::path::Path;

@@ -6,7 +6,6 @@
 //! values). Only the item numbers cross the network; the trainer keeps the cameras and body
 //! fits, which it reads without the images.
 
-use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use burn::backend::ir::{BackendIr, CustomOpIr, HandleContainer};
@@ -16,7 +15,6 @@ use prism_data::{BatchPixels, DatasetReader, PIXEL_PLANES, SampleDataset};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::handshake::config_digest;
 use prism_core::served::{self as ops, Call, ServedOp};
 
 /// The operation's id.
@@ -48,50 +46,6 @@ pub struct ShardRequest {
     pub seed: u64,
     /// The share's items of the training set (see `SampleDataset::load`).
     pub items: Vec<usize>,
-}
-
-/// The digest of the dataset opened by `reader`: its `dataset.json` and the list of its files
-/// (relative paths, sorted, with their sizes; hidden files left out). A trainer and a server
-/// with equal digests hold the same dataset; a stale copy with the same metadata but a file
-/// missing, added or of another size differs.
-///
-/// # Errors
-/// A folder of the dataset that cannot be listed, naming it.
-pub fn dataset_digest(reader: &DatasetReader) -> std::io::Result<String> {
-    let mut text = serde_json::to_string(reader.meta()).expect("a dataset's meta serialises");
-    let mut files = Vec::new();
-    list_files(reader.root(), reader.root(), &mut files)?;
-    files.sort();
-    for (path, size) in files {
-        text.push_str(&format!("\n{path}\t{size}"));
-    }
-    Ok(config_digest(&text))
-}
-
-/// Appends the files under `dir` (recursively, hidden names left out) to `out`, as paths
-/// relative to `root` with `/` separators, and sizes.
-fn list_files(root: &Path, dir: &Path, out: &mut Vec<(String, u64)>) -> std::io::Result<()> {
-    let named =
-        |e: std::io::Error| std::io::Error::new(e.kind(), format!("{}: {e}", dir.display()));
-    for entry in std::fs::read_dir(dir).map_err(named)? {
-        let entry = entry.map_err(named)?;
-        if entry.file_name().to_string_lossy().starts_with('.') {
-            continue;
-        }
-        let path = entry.path();
-        let meta = entry.metadata().map_err(named)?;
-        if meta.is_dir() {
-            list_files(root, &path, out)?;
-        } else {
-            let relative = path.strip_prefix(root).unwrap_or(&path);
-            let parts: Vec<String> = relative
-                .components()
-                .map(|c| c.as_os_str().to_string_lossy().into_owned())
-                .collect();
-            out.push((parts.join("/"), meta.len()));
-        }
-    }
-    Ok(())
 }
 
 /// `server` loading shares from the dataset of `reader` on the backend of `device`.

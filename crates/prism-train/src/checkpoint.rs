@@ -13,10 +13,12 @@
 //! | `config.toml` | the full training config of the run |
 //!
 //! A checkpoint is written into `step-NNNNNNNN.partial/` and moved in when complete by
-//! [`prism_core::files::replace_dir`] (a folder it replaces is put aside as `.old` until the new
-//! one is in), so a run killed at any moment leaves a complete checkpoint, and never a
-//! half-written one under its final name; the next run recovers the folder and removes the
-//! leftovers ([`recover_checkpoints`]).
+//! [`prism_core::files::replace_dir`]: every file synced (the `.bpk` files Burn's recorder
+//! writes included), then exchanged with a folder it replaces in one rename (where the file
+//! system cannot, the old one is put aside as `.old` until the new one is in), and the old one
+//! removed only once the new one is on the disk. So a run killed, or a machine losing power, at
+//! any moment leaves a complete checkpoint, and never a half-written one under its final name;
+//! the next run recovers the folder and removes the leftovers ([`recover_checkpoints`]).
 
 use std::fs;
 use std::path::{Path, PathBuf};

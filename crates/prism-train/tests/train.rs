@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use prism_core::BackendKind;
+use prism_core::files::{Disk, ReplaceFs};
 use prism_data::PrismBatch;
 use prism_data::SynthOptions;
 use prism_losses::LossTerms;
@@ -118,42 +119,116 @@ fn a_resumed_run_reproduces_the_uninterrupted_run() {
     assert_eq!(summary.steps, 9);
 }
 
-/// A checkpoint replace killed after any of its steps (each step's effect is what a kill
-/// there leaves on disk) still leaves a complete checkpoint, and the resumed run starts from it.
+/// The disk, failing the call numbered `fail_at` (0-based, if any) among a folder replace's
+/// exchanges, renames and removals (its syncs change nothing a crash leaves), and refusing the
+/// exchange unless `exchange` (the fallback of two renames).
+struct FailAt {
+    calls: usize,
+    fail_at: Option<usize>,
+    exchange: bool,
+}
+
+impl FailAt {
+    fn call(&mut self) -> std::io::Result<()> {
+        self.calls += 1;
+        if Some(self.calls - 1) == self.fail_at {
+            return Err(std::io::Error::other("injected failure"));
+        }
+        Ok(())
+    }
+}
+
+impl ReplaceFs for FailAt {
+    fn sync_file(&mut self, file: &Path) -> std::io::Result<()> {
+        Disk.sync_file(file)
+    }
+
+    fn sync_folder(&mut self, dir: &Path) -> std::io::Result<()> {
+        Disk.sync_folder(dir)
+    }
+
+    fn exchange(&mut self, a: &Path, b: &Path) -> std::io::Result<()> {
+        if !self.exchange {
+            return Err(std::io::ErrorKind::Unsupported.into());
+        }
+        self.call()?;
+        Disk.exchange(a, b)
+    }
+
+    fn rename(&mut self, from: &Path, to: &Path) -> std::io::Result<()> {
+        self.call()?;
+        Disk.rename(from, to)
+    }
+
+    fn remove_dir_all(&mut self, dir: &Path) -> std::io::Result<()> {
+        self.call()?;
+        Disk.remove_dir_all(dir)
+    }
+}
+
+/// A checkpoint replace failed at each of its steps (a crash there), in either of its ways,
+/// still leaves a complete checkpoint, and the resumed run starts from it: one failure for each
+/// state a crash can leave. (`crates/prism-core/tests/atomic_kill/power_cut.rs` fails every
+/// call, syncs included, and cuts the power there.)
 #[test]
-fn a_checkpoint_replace_stopped_at_any_step_leaves_a_checkpoint_to_resume_from() {
-    use prism_core::files::{ReplaceStep, STAGED_SUFFIX, with_suffix};
+fn a_checkpoint_replace_failed_at_any_step_leaves_a_checkpoint_to_resume_from() {
+    use prism_core::files::{STAGED_SUFFIX, replace_dir_with, with_suffix};
     let _serial = common::serial();
     let config = tiny_config(2, |c| c.train.checkpoint_every = 2);
     let base = tempfile::tempdir().unwrap();
     train(&config, &TeacherTask::default(), &options(base.path())).unwrap();
-    for stop in 0..=ReplaceStep::ALL.len() {
+    // (exchange, the failing call, what the failure leaves): the exchange's calls are the
+    // exchange and the removal, the fallback's the two renames and the removal.
+    let cases = [
+        (true, Some(0), "nothing renamed"),
+        (
+            true,
+            Some(1),
+            "exchanged, the old folder under the staged name",
+        ),
+        (
+            false,
+            Some(1),
+            "the old folder put aside, the new one not moved in",
+        ),
+        (
+            false,
+            Some(2),
+            "the new folder moved in, the old one still aside",
+        ),
+        (true, None, "the replace through"),
+    ];
+    for (exchange, fail_at, state) in cases {
         let run = tempfile::tempdir().unwrap();
         common::copy_dir(base.path(), run.path());
         // A new copy of the step-2 checkpoint, staged to replace it.
         let dir = run.path().join("checkpoints/step-00000002");
         let staged = with_suffix(&dir, STAGED_SUFFIX);
         common::copy_dir(&dir, &staged);
-        for step in &ReplaceStep::ALL[..stop] {
-            step.run(&staged, &dir).unwrap();
-        }
+        let mut calls = FailAt {
+            calls: 0,
+            fail_at,
+            exchange,
+        };
+        let through = replace_dir_with(&mut calls, &staged, &dir).is_ok();
+        assert_eq!(through, fail_at.is_none(), "{state}");
         let mut resume = options(run.path());
         resume.resume = true;
         resume.steps = Some(3);
         let summary = train(&config, &TeacherTask::default(), &resume)
-            .unwrap_or_else(|e| panic!("stopped after {stop} steps: {e}"));
-        assert_eq!((summary.start_step, summary.steps), (2, 3), "stop {stop}");
+            .unwrap_or_else(|e| panic!("{state}: {e}"));
+        assert_eq!((summary.start_step, summary.steps), (2, 3), "{state}");
         let left: Vec<(usize, PathBuf)> = list_checkpoints(run.path()).unwrap();
         assert_eq!(
             left.iter().map(|(s, _)| *s).collect::<Vec<_>>(),
             [2, 3],
-            "stop {stop}"
+            "{state}"
         );
         let names: Vec<String> = std::fs::read_dir(run.path().join("checkpoints"))
             .unwrap()
             .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
             .collect();
-        assert_eq!(names.len(), 2, "stop {stop}: leftovers in {names:?}");
+        assert_eq!(names.len(), 2, "{state}: leftovers in {names:?}");
     }
 }
 
@@ -171,16 +246,33 @@ fn two_devices_train_like_one() {
     let state = Checkpoint::read(two.path()).unwrap().state;
     assert_eq!(state.devices, 2);
     // The shares (2 + 1 samples) are weighted by their pairs, so the summed gradient is the
-    // whole batch's: the same weights up to float rounding.
+    // whole batch's: the same loss and gradient norm at every step, and the same weights, up to
+    // float rounding. AdamW divides a gradient by its own running size, so the weights alone
+    // would let a gradient wrong by a constant factor (a sum over devices, not a mean) pass;
+    // its norm would not.
     let diff = max_difference(&weights(one.path()), &weights(two.path()));
     assert!(diff < 1e-5, "max difference {diff}");
-    let loss = |dir: &Path| {
-        read_metrics(&dir.join("metrics.jsonl")).unwrap()[2]["loss"]
-            .as_f64()
-            .unwrap()
-    };
-    let (a, b) = (loss(one.path()), loss(two.path()));
-    assert!((a - b).abs() < 1e-6 * a.abs().max(1.0), "loss {a} vs {b}");
+    let (want, got) = (curve(one.path()), curve(two.path()));
+    assert_eq!(want.len(), 2, "{want:?}");
+    assert_eq!(got.len(), want.len(), "{got:?}");
+    for (step, (w, g)) in want.iter().zip(&got).enumerate() {
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-5 * b.abs();
+        assert!(
+            close(g.0, w.0) && close(g.1, w.1),
+            "step {}: (loss, gradient norm) {g:?} on two devices, {w:?} on one",
+            step + 1
+        );
+    }
+}
+
+/// Each step's loss and gradient norm (of the devices' combined gradient), from a run's
+/// `metrics.jsonl`.
+fn curve(run: &Path) -> Vec<(f64, f64)> {
+    read_metrics(&run.join("metrics.jsonl"))
+        .unwrap()
+        .iter()
+        .filter_map(|row| Some((row["loss"].as_f64()?, row["grad_norm"].as_f64()?)))
+        .collect()
 }
 
 /// The teacher's loss, made NaN at some steps.
