@@ -376,9 +376,9 @@ impl PrismConfig {
     }
 
     /// This config with the paper's output parameterisation: the 3DGS head regresses colours
-    /// and depths at a one-pixel scale without keying, and the NVS decoder regresses colours
-    /// (`gs_colour = "regressed"`, `gs_depth = "head"`, `gs_scale = 1`, `gs_keying = false`,
-    /// `nvs_output = "direct"`).
+    /// and depths at a one-pixel scale without keying, and the NVS decoder regresses colours,
+    /// both a value per pixel (`gs_colour = "regressed"`, `gs_depth = "head"`, `gs_scale = 1`,
+    /// `gs_keying = false`, `nvs_output = "direct"`, `head_upsample = 0`).
     pub fn paper_outputs(self) -> Self {
         Self {
             gs_colour: GsColour::Regressed,
@@ -386,6 +386,7 @@ impl PrismConfig {
             gs_scale: 1.0,
             gs_keying: false,
             nvs_output: NvsOutput::Direct,
+            head_upsample: 0,
             ..self
         }
     }
