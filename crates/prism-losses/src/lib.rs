@@ -2,7 +2,8 @@
 //!
 //! - Training objective: [`Objective`] with [`LossWeights`] (the `[losses]` config section)
 //!   combines `L_nvs` and `L_gs` (MSE + LPIPS), [`point_loss`] (`L_pts`), [`smplx_loss`]
-//!   (`L_smplx`) and [`distill_loss`] (`L_distill`) and reports every term by name.
+//!   (`L_smplx`), [`distill_loss`] (`L_distill`) and, beyond the paper, [`centres_loss`]
+//!   (`L_centres`) and reports every term by name.
 //! - Metrics: [`psnr()`], [`ssim()`] and [`Lpips::distance`] on `[B, 3, H, W]` tensors in [0, 1],
 //!   per image. [`score_images`] is the one scoring pipeline (all three per image, and
 //!   [`ImageScores::mean`]) of validation, evaluation and [`score_paths`] (image files or
@@ -12,6 +13,7 @@
 //! LPIPS uses the real v0.1 AlexNet weights committed at `data/lpips_alex.safetensors`
 //! (found by [`find_lpips_weights`]); nothing is ever downloaded.
 
+pub mod centres;
 pub mod distill;
 pub mod error;
 pub mod image_files;
@@ -28,15 +30,16 @@ pub mod ssim;
 pub mod table;
 pub mod weights;
 
+pub use centres::centres_loss;
 pub use distill::{DistillInputs, distill_layers, distill_loss};
 pub use error::LossError;
 pub use image_files::{FolderScores, Scores, load_image, score_files, score_paths};
 pub use lpips::{LPIPS_MIN_SIDE, Lpips};
 pub use objective::{
-    ImagePair, LossInputs, LossTerms, LossWeights, Objective, OpacityInputs, PointInputs,
-    SmplxInputs, holes_loss, mse_loss,
+    CentreInputs, ImagePair, LossInputs, LossTerms, LossWeights, Objective, OpacityInputs,
+    PointInputs, SmplxInputs, holes_loss, mse_loss,
 };
-pub use opacity::{mask_rows, opacity_loss};
+pub use opacity::{opacity_loss, pixel_rows};
 pub use point::{POINT_LOSS_SCALES, PointLoss, point_loss};
 pub use psnr::psnr;
 pub use region::{psnr_region_filled, score_region};

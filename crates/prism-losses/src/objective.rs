@@ -1,14 +1,15 @@
 //! The training objective (paper Sec. 3.3):
 //! `L = l_nvs L_nvs + l_gs L_gs + l_pts L_pts + l_smplx L_smplx + l_distill L_distill`,
 //! with `L_nvs = MSE + l_lpips LPIPS` and `L_gs` alike, plus, beyond the paper,
-//! `l_gs_opacity L_opacity` (see [`crate::opacity`]; 0 in the paper config).
+//! `l_gs_opacity L_opacity` (see [`crate::opacity`]) and `l_gs_centres L_centres` (see
+//! [`crate::centres`]; both 0 in the paper config).
 
 use burn::config::Config;
 use burn::tensor::Tensor;
 
 use crate::{
-    DistillInputs, LossError, Lpips, PointLoss, SmplxParams, distill_loss, opacity_loss,
-    point_loss, smplx_loss,
+    DistillInputs, LossError, Lpips, PointLoss, SmplxParams, centres_loss, distill_loss,
+    opacity_loss, point_loss, smplx_loss,
 };
 
 /// Weights of the objective: the `[losses]` section of the TOML configs. Defaults are the
@@ -45,6 +46,11 @@ pub struct LossWeights {
     /// the decoder has to synthesise (not in the paper: 0 there; see [`holes_loss`]).
     #[config(default = 0.0)]
     pub nvs_holes: f64,
+    /// `l_gs_centres`, weight of `L_centres`, the 3DGS head's Gaussian centres against the
+    /// dataset's points on the source foreground (not in the paper: 0 there; see
+    /// [`crate::centres`]).
+    #[config(default = 0.0)]
+    pub gs_centres: f64,
 }
 
 /// Inputs of `L_opacity` (see [`opacity_loss`]).
@@ -53,7 +59,18 @@ pub struct OpacityInputs {
     /// The 3DGS head's opacity logits, one row per source pixel, `[B, N, 1]`.
     pub logits: Tensor<3>,
     /// The source foreground mask in the same order, `[B, N, 1]` (see
-    /// [`crate::opacity::mask_rows`]).
+    /// [`crate::opacity::pixel_rows`]).
+    pub mask: Tensor<3>,
+}
+
+/// Inputs of `L_centres` (see [`centres_loss`]).
+#[derive(Clone, Debug)]
+pub struct CentreInputs {
+    /// The 3DGS head's Gaussian centres, one row per source pixel, `[B, N, 3]`.
+    pub centres: Tensor<3>,
+    /// The true points in the same order, `[B, N, 3]` (see [`crate::opacity::pixel_rows`]).
+    pub points: Tensor<3>,
+    /// The source foreground mask in the same order, `[B, N, 1]`.
     pub mask: Tensor<3>,
 }
 
@@ -99,6 +116,8 @@ pub struct LossInputs {
     pub gs: Option<ImagePair>,
     /// 3DGS head opacities and the source mask.
     pub gs_opacity: Option<OpacityInputs>,
+    /// 3DGS head centres and the true points.
+    pub gs_centres: Option<CentreInputs>,
     /// Point-branch prediction and targets.
     pub pts: Option<PointInputs>,
     /// SMPL-X branch prediction and fit.
@@ -133,6 +152,12 @@ impl LossInputs {
         self
     }
 
+    /// With the 3DGS head's centres and the true points.
+    pub fn with_gs_centres(mut self, centres: CentreInputs) -> Self {
+        self.gs_centres = Some(centres);
+        self
+    }
+
     /// With the point branch's points and confidence and their targets.
     pub fn with_pts(mut self, pts: PointInputs) -> Self {
         self.pts = Some(pts);
@@ -160,7 +185,8 @@ impl LossInputs {
 
 /// The value of every computed term, unweighted, plus the weighted `total`, each `[1]`.
 ///
-/// Names: `nvs_holes`, `nvs_mse`, `nvs_lpips`, `gs_mse`, `gs_lpips`, `gs_opacity`, `pts`,
+/// Names: `nvs_holes`, `nvs_mse`, `nvs_lpips`, `gs_mse`, `gs_lpips`, `gs_opacity`,
+/// `gs_centres`, `pts`,
 /// `smplx`, `distill` (in this order, those computed only) and `total`.
 #[derive(Clone, Debug)]
 pub struct LossTerms {
@@ -235,7 +261,8 @@ impl Objective {
 
     /// Evaluates every term that has inputs and a nonzero weight, and the weighted total
     /// `L = l_nvs (MSE + l_lpips LPIPS)_nvs + l_gs (MSE + l_lpips LPIPS)_gs + l_pts L_pts +
-    /// l_smplx L_smplx + l_distill L_distill + l_gs_opacity L_opacity`. MSE and LPIPS are
+    /// l_smplx L_smplx + l_distill L_distill + l_gs_opacity L_opacity + l_gs_centres L_centres`.
+    /// MSE and LPIPS are
     /// means over the batch.
     ///
     /// # Errors
@@ -280,6 +307,11 @@ impl Objective {
             let value = opacity_loss(o.logits, o.mask);
             add(w.gs_opacity, &value);
             terms.push(("gs_opacity", value));
+        }
+        if let Some(c) = inputs.gs_centres.filter(|_| w.gs_centres != 0.0) {
+            let value = centres_loss(c.centres, c.points, c.mask);
+            add(w.gs_centres, &value);
+            terms.push(("gs_centres", value));
         }
         if let Some(p) = inputs.pts.filter(|_| w.pts != 0.0) {
             let loss: PointLoss = point_loss(

@@ -21,11 +21,11 @@ pub fn opacity_loss(logits: Tensor<3>, target: Tensor<3>) -> Tensor<1> {
     (inside + outside).mean().neg()
 }
 
-/// A foreground mask `[B, 1, H, W]` as one row per pixel, `[B, H W, 1]` (the order of the 3DGS
-/// head's Gaussians).
-pub fn mask_rows(mask: Tensor<4>) -> Tensor<3> {
-    let [b, c, h, w] = mask.dims();
-    mask.reshape([b, c, h * w]).swap_dims(1, 2)
+/// A per-pixel map `[B, C, H, W]` (a foreground mask, a point map) as one row per pixel,
+/// `[B, H W, C]`: the order of the 3DGS head's Gaussians.
+pub fn pixel_rows(map: Tensor<4>) -> Tensor<3> {
+    let [b, c, h, w] = map.dims();
+    map.reshape([b, c, h * w]).swap_dims(1, 2)
 }
 
 #[cfg(test)]
@@ -71,17 +71,28 @@ mod tests {
     }
 
     #[test]
-    fn mask_rows_follow_the_pixels_row_major() {
+    fn pixel_rows_follow_the_pixels_row_major() {
         let device = BackendKind::Ndarray.device().unwrap();
         let mask = Tensor::<4>::from_data(
             TensorData::new((0..6).map(|v| v as f32).collect::<Vec<_>>(), [1, 1, 2, 3]),
             &device,
         );
-        let rows = mask_rows(mask);
+        let rows = pixel_rows(mask);
         assert_eq!(rows.dims(), [1, 6, 1]);
         assert_eq!(
             rows.into_data().try_into_vec_as::<f32>().unwrap(),
             vec![0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
+        );
+        // Three channels: channel c of pixel p is 10 c + p; a row holds one pixel's channels.
+        let points = Tensor::<4>::from_data(
+            TensorData::new(vec![0.0f32, 1.0, 10.0, 11.0, 20.0, 21.0], [1, 3, 1, 2]),
+            &device,
+        );
+        let rows = pixel_rows(points);
+        assert_eq!(rows.dims(), [1, 2, 3]);
+        assert_eq!(
+            rows.into_data().try_into_vec_as::<f32>().unwrap(),
+            vec![0.0, 10.0, 20.0, 1.0, 11.0, 21.0]
         );
     }
 }

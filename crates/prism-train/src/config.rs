@@ -151,6 +151,7 @@ impl TrainingConfig {
             ("losses.confidence_alpha", l.confidence_alpha),
             ("losses.gs_opacity", l.gs_opacity),
             ("losses.nvs_holes", l.nvs_holes),
+            ("losses.gs_centres", l.gs_centres),
         ] {
             if !(value.is_finite() && value >= 0.0) {
                 return fail(field, format!("{value} is not a non-negative number"));

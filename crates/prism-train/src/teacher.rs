@@ -7,8 +7,8 @@ use std::sync::Arc;
 use burn::tensor::Device;
 use prism_data::PrismBatch;
 use prism_losses::{
-    LossInputs, LossTerms, Lpips, Objective, OpacityInputs, PointInputs, SmplxInputs, SmplxParams,
-    mask_rows,
+    CentreInputs, LossInputs, LossTerms, Lpips, Objective, OpacityInputs, PointInputs, SmplxInputs,
+    SmplxParams, pixel_rows,
 };
 use prism_model::{Prism, PrismOutput};
 
@@ -19,7 +19,8 @@ use crate::trainer::{Task, TaskData};
 
 /// The teacher's objective on one device (paper Sec. 3.3, Eq. 6):
 /// `L = l_nvs (MSE + l_lpips LPIPS)(I_t, I_t^gt) + l_gs (MSE + l_lpips LPIPS)(I_gs, I_t^gt)
-///  + l_pts L_pts + l_smplx L_smplx`.
+///  + l_pts L_pts + l_smplx L_smplx`, plus the terms beyond the paper that the config weighs
+/// (`L_opacity`, `L_centres`, `L_holes`).
 ///
 /// A term is computed only when the model has the part it supervises (a config without the
 /// point branch has no `L_pts`) and its weight is nonzero; `L_smplx` skips the pairs whose
@@ -88,7 +89,12 @@ impl TeacherLoss {
                 .with_gs(gaussians.image.clone(), target)
                 .with_gs_opacity(OpacityInputs {
                     logits: gaussians.gaussians.opacity_logits.clone(),
-                    mask: mask_rows(batch.source_mask.clone()),
+                    mask: pixel_rows(batch.source_mask.clone()),
+                })
+                .with_gs_centres(CentreInputs {
+                    centres: gaussians.gaussians.means.clone(),
+                    points: pixel_rows(batch.source_points.clone()),
+                    mask: pixel_rows(batch.source_mask.clone()),
                 });
         }
         if let Some(points) = &out.points {

@@ -1,0 +1,85 @@
+//! `L_centres`: the 3DGS head's Gaussian centres against the dataset's points (not in the
+//! paper).
+//!
+//! With `gs_depth = "points"` the Gaussians sit at the point branch's distances plus the
+//! head's correction. `L_pts` supervises the point branch, but the correction is trained
+//! only through the rendered images, which say little about depth. Yet the true depth is
+//! worth the most of any property the oracle swaps give the renderer (BENCHMARKS, issue 42).
+//! This term supervises the Gaussians' own centres directly. It is used in training only:
+//! at inference the model still estimates its own depth.
+
+use burn::tensor::Tensor;
+
+/// Mean L1 distance between the Gaussian `centres` and the true points `points_gt`, both
+/// `[B, N, 3]` (one row per source pixel, world coordinates), over the source foreground
+/// `mask` `[B, N, 1]` (foreground where `> 0.5`), `[1]`:
+///
+/// `L_centres = mean_b [ sum_fg |mu - X_gt|_1 / max(N_fg, 1) ]`
+///
+/// Each image weighs the same (as in `L_pts`), and an image without foreground counts zero.
+pub fn centres_loss(centres: Tensor<3>, points_gt: Tensor<3>, mask: Tensor<3>) -> Tensor<1> {
+    assert_eq!(
+        centres.dims(),
+        points_gt.dims(),
+        "L_centres: centres and points differ in shape"
+    );
+    let [batch, rows, _] = centres.dims();
+    assert_eq!(
+        mask.dims(),
+        [batch, rows, 1],
+        "L_centres: the mask must be [B, N, 1]"
+    );
+    let fg = mask.greater_elem(0.5).float();
+    let distance = centres.sub(points_gt).abs().sum_dim(2).mul(fg.clone());
+    let per_image = |t: Tensor<3>| t.sum_dim(1).reshape([batch]);
+    per_image(distance).div(per_image(fg).clamp_min(1.0)).mean()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::tensor::TensorData;
+    use prism_core::BackendKind;
+
+    #[test]
+    fn is_the_mean_foreground_distance_per_image_with_its_gradient() {
+        let device = BackendKind::Ndarray.device().unwrap().autodiff();
+        // Two images of three rows. Image 0: rows 0 and 2 foreground, off by (0.1, -0.2, 0)
+        // and (0, 0, 0.5); row 1 is background and far off. Image 1: no foreground.
+        let mu = [
+            0.1f32, -0.2, 0.0, 9.0, 9.0, 9.0, 1.0, 1.0, 1.5, //
+            3.0, 3.0, 3.0, 4.0, 4.0, 4.0, 5.0, 5.0, 5.0,
+        ];
+        let gt = [
+            0.0f32, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, //
+            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+        ];
+        let m = [1.0f32, 0.0, 0.9, 0.2, 0.0, 0.4];
+        let centres =
+            Tensor::<3>::from_data(TensorData::new(mu.to_vec(), [2, 3, 3]), &device).require_grad();
+        let points = Tensor::<3>::from_data(TensorData::new(gt.to_vec(), [2, 3, 3]), &device);
+        let mask = Tensor::<3>::from_data(TensorData::new(m.to_vec(), [2, 3, 1]), &device);
+        let loss = centres_loss(centres.clone(), points, mask);
+        // Image 0: (0.3 + 0.5) / 2 = 0.4; image 1: 0; the mean of the two.
+        let value = loss.clone().into_scalar::<f64>();
+        assert!((value - 0.2).abs() < 1e-6, "{value}");
+        // d/dmu = sign(mu - gt) / (2 N_fg) on the foreground, 0 elsewhere.
+        let g = centres
+            .grad(&loss.backward())
+            .unwrap()
+            .into_data()
+            .try_into_vec_as::<f32>()
+            .unwrap();
+        let want = [
+            0.25f32, -0.25, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.25, //
+            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+        ];
+        for (i, (&g, &w)) in g.iter().zip(&want).enumerate() {
+            // |x| at exactly 0 may take either subgradient; those entries are not checked.
+            if mu[i] == gt[i] {
+                continue;
+            }
+            assert!((g - w).abs() < 1e-6, "row {i}: {g} vs {w}");
+        }
+    }
+}
