@@ -146,6 +146,12 @@ impl EvaluateArgs {
             s.copy_source,
             s.true_depth_warp
         );
+        if let Some(error) = e.centre_error {
+            println!(
+                "  3DGS centres from the true points (source foreground): {:.2} cm",
+                error * 100.0
+            );
+        }
         if let Some(dir) = &self.save_predictions {
             println!("predictions: {}", dir.display());
         }

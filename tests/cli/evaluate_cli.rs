@@ -280,6 +280,12 @@ fn evaluate_writes_every_key_the_report_and_the_grids() {
         assert!(row["gs"]["psnr_disoccluded"].as_f64().unwrap().is_finite());
         assert!(row["nvs_speckle"].as_f64().unwrap() > 0.0);
     }
+    // The Gaussians' depth error: a trained tiny model is centimetres off, not metres.
+    let centre_error = v["centre_error"].as_f64().unwrap();
+    assert!(
+        centre_error > 0.0 && centre_error < 0.5,
+        "centre error {centre_error} m"
+    );
 
     assert_eq!(v["disoccluded_by"], "depth_test");
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
@@ -289,6 +295,7 @@ fn evaluate_writes_every_key_the_report_and_the_grids() {
         "## Speckle",
         "## Oracle swaps",
         "| all but colour (warp, model's colours) |",
+        "from the dataset's points on average over the source foreground",
         "the most that a better guess of what the source does not see can add",
     ] {
         assert!(report.contains(words), "{words}: {report}");

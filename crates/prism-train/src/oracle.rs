@@ -162,6 +162,22 @@ impl OracleBatch {
         }
     }
 
+    /// How far the model's Gaussians lie from the truth: the sum over the source foreground of
+    /// each centre's distance (metres) to the dataset's point of its pixel, and the number of
+    /// foreground pixels. Both centres are on the pixel's ray, so this is the depth error.
+    pub fn centre_distances(&self) -> (f64, usize) {
+        let mut sum = 0.0f64;
+        let mut count = 0;
+        for (i, _) in self.foreground.iter().enumerate().filter(|(_, fg)| **fg) {
+            let d2: f32 = (0..3)
+                .map(|k| (self.means[3 * i + k] - self.true_means[3 * i + k]).powi(2))
+                .sum();
+            sum += f64::from(d2.sqrt());
+            count += 1;
+        }
+        (sum, count)
+    }
+
     /// The Gaussians with `swap`'s properties taken from the truth, the scales of the scale
     /// swap `footprint` source pixels wide.
     pub fn swapped(&self, swap: Swap, footprint: f32, device: &Device) -> Gaussians {
@@ -292,6 +308,36 @@ mod tests {
             &device,
         ));
         assert!(none.iter().zip(&warp).any(|(a, b)| (a - b).abs() > 0.1));
+    }
+
+    #[test]
+    fn centre_distances_measure_the_depth_error_on_the_foreground() {
+        let device = BackendKind::Ndarray.device().unwrap();
+        let samples = vec![sample()];
+        let model = wrong(&samples, &device);
+        let (sum, count) = OracleBatch::new(&samples, &model).centre_distances();
+        // The model's centres at depth 3 against the plane's points at depth 2, on the 16 x 16
+        // foreground square only.
+        let camera = &samples[0].source.camera;
+        let want: f64 = (8..24)
+            .flat_map(|y| (8..24).map(move |x| (x, y)))
+            .map(|(x, y)| {
+                let (x, y) = (x as f32 + 0.5, y as f32 + 0.5);
+                f64::from((camera.unproject(x, y, 3.0) - camera.unproject(x, y, 2.0)).length())
+            })
+            .sum();
+        assert_eq!(count, 16 * 16);
+        assert!((sum - want).abs() < 1e-3 * want, "{sum} vs {want}");
+        assert!(
+            sum / count as f64 > 0.99,
+            "about a metre each: {}",
+            sum / count as f64
+        );
+        // The depth swap puts them on the points.
+        let swapped = OracleBatch::new(&samples, &model).swapped(Swap::Depth, 0.3, &device);
+        let (sum, count) = OracleBatch::new(&samples, &swapped).centre_distances();
+        assert_eq!(count, 16 * 16);
+        assert!(sum < 1e-4, "{sum}");
     }
 
     #[test]
