@@ -253,6 +253,8 @@ fn evaluate_writes_every_key_the_report_and_the_grids() {
         [
             "none",
             "depth",
+            "half_depth",
+            "quarter_depth",
             "colour",
             "opacity",
             "scale",
@@ -272,9 +274,9 @@ fn evaluate_writes_every_key_the_report_and_the_grids() {
         oracle[0]
     );
     assert!(
-        (psnr(&oracle[5]["gs"]) - psnr(warp)).abs() < 0.1,
+        (psnr(&oracle[7]["gs"]) - psnr(warp)).abs() < 0.1,
         "{:?}",
-        oracle[5]
+        oracle[7]
     );
     for row in oracle {
         assert!(row["gs"]["psnr_disoccluded"].as_f64().unwrap().is_finite());

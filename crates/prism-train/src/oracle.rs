@@ -12,6 +12,8 @@
 //!
 //! Every swap is rendered like `I_gs` (over the background, in the target camera), and passed
 //! through the model's NVS decoder as `I_gs` would be, giving the `I_t` the swap would make.
+//! Two partial depth swaps move each foreground centre only part of the way to the truth (the
+//! depth error halved, quartered), to show how the pictures grow with the depth's precision.
 //! Swapping all four is the true-depth warp drawn with the model's background Gaussians too;
 //! "all but colour" is the true-depth warp with the model's colours. The truth never enters
 //! the model's own predictions: this runs only in evaluation, on datasets with point maps.
@@ -35,6 +37,10 @@ pub enum Swap {
     None,
     /// Centres at the true depth.
     Depth,
+    /// Centres halfway from the model's depth to the true one: the depth error halved.
+    HalfDepth,
+    /// The depth error a quarter of the model's.
+    QuarterDepth,
     /// The source pixels' colours.
     Colour,
     /// Opacities from the source mask.
@@ -49,9 +55,11 @@ pub enum Swap {
 
 impl Swap {
     /// Every swap, in the report's order.
-    pub const ALL: [Swap; 7] = [
+    pub const ALL: [Swap; 9] = [
         Swap::None,
         Swap::Depth,
+        Swap::HalfDepth,
+        Swap::QuarterDepth,
         Swap::Colour,
         Swap::Opacity,
         Swap::Scale,
@@ -64,6 +72,8 @@ impl Swap {
         match self {
             Swap::None => "none (the model's Gaussians)",
             Swap::Depth => "true depth",
+            Swap::HalfDepth => "depth error halved",
+            Swap::QuarterDepth => "depth error quartered",
             Swap::Colour => "source colours",
             Swap::Opacity => "opacity from the mask",
             Swap::Scale => "warp-footprint scales",
@@ -72,8 +82,15 @@ impl Swap {
         }
     }
 
-    fn depth(self) -> bool {
-        matches!(self, Swap::Depth | Swap::All | Swap::AllButColour)
+    /// The share of the model's depth error a foreground centre keeps: 1 without a depth
+    /// swap, 0 at the true depth.
+    fn depth_error_kept(self) -> f32 {
+        match self {
+            Swap::Depth | Swap::All | Swap::AllButColour => 0.0,
+            Swap::HalfDepth => 0.5,
+            Swap::QuarterDepth => 0.25,
+            Swap::None | Swap::Colour | Swap::Opacity | Swap::Scale => 1.0,
+        }
     }
 
     fn colour(self) -> bool {
@@ -196,8 +213,17 @@ impl OracleBatch {
             let (centre, focal) = self.sources[pair];
             for i in pair * n..(pair + 1) * n {
                 let fg = self.foreground[i];
-                if swap.depth() && fg {
-                    means[3 * i..3 * i + 3].copy_from_slice(&self.true_means[3 * i..3 * i + 3]);
+                let kept = swap.depth_error_kept();
+                if kept < 1.0 && fg {
+                    // Both on the pixel's ray, so the mix is too.
+                    let range = 3 * i..3 * i + 3;
+                    for ((mean, &model), &truth) in means[range.clone()]
+                        .iter_mut()
+                        .zip(&self.means[range.clone()])
+                        .zip(&self.true_means[range])
+                    {
+                        *mean = truth + kept * (model - truth);
+                    }
                 }
                 if swap.opacity() {
                     opacity[i] = logit(if fg { TRUE_OPACITY } else { BACKGROUND_OPACITY });
@@ -333,11 +359,18 @@ mod tests {
             "about a metre each: {}",
             sum / count as f64
         );
-        // The depth swap puts them on the points.
-        let swapped = OracleBatch::new(&samples, &model).swapped(Swap::Depth, 0.3, &device);
-        let (sum, count) = OracleBatch::new(&samples, &swapped).centre_distances();
-        assert_eq!(count, 16 * 16);
-        assert!(sum < 1e-4, "{sum}");
+        // The depth swap puts them on the points; the partial ones keep a share of the error.
+        let full = sum;
+        for (swap, share) in [
+            (Swap::Depth, 0.0),
+            (Swap::HalfDepth, 0.5),
+            (Swap::QuarterDepth, 0.25),
+        ] {
+            let swapped = OracleBatch::new(&samples, &model).swapped(swap, 0.3, &device);
+            let (sum, count) = OracleBatch::new(&samples, &swapped).centre_distances();
+            assert_eq!(count, 16 * 16);
+            assert!((sum - share * full).abs() < 1e-4 * full, "{swap:?}: {sum}");
+        }
     }
 
     #[test]
@@ -363,10 +396,15 @@ mod tests {
             let [means, scales, rotations, opacity, colours] = &got;
             for i in 0..fg.len() {
                 let mean = &means[3 * i..3 * i + 3];
-                if swap.depth() && fg[i] {
-                    assert_eq!(mean, &batch.true_means[3 * i..3 * i + 3], "{swap:?}");
-                } else {
-                    assert_eq!(mean, &original[0][3 * i..3 * i + 3], "{swap:?}");
+                let kept = swap.depth_error_kept();
+                for k in 0..3 {
+                    let (truth, model) = (batch.true_means[3 * i + k], original[0][3 * i + k]);
+                    let want = if fg[i] {
+                        truth + kept * (model - truth)
+                    } else {
+                        model
+                    };
+                    assert!((mean[k] - want).abs() < 1e-6, "{swap:?} {i}: {mean:?}");
                 }
                 let o = opacity[i];
                 if swap.opacity() {

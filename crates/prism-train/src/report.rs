@@ -223,8 +223,9 @@ fn oracle_section(e: &Evaluation) -> Option<String> {
         out,
         "## Oracle swaps\n\nThe 3DGS head's Gaussians drawn again with one property taken \
          from the truth (depth from the dataset's points, the source pixels' colours, \
-         opacities from the source mask, isotropic sizes of {} source pixels), and the NVS \
-         decoder's output on each render. Gains are over the first row.\n\n\
+         opacities from the source mask, isotropic sizes of {} source pixels; the depth error \
+         also halved and quartered instead of removed), and the NVS decoder's output on each \
+         render. Gains are over the first row.\n\n\
          | swap | I_gs PSNR | gain | in region | I_t PSNR | gain | in region | I_gs speckle | \
          I_t speckle |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|",
         e.true_depth_warp_footprint
