@@ -146,10 +146,14 @@ impl EvaluateArgs {
             s.copy_source,
             s.true_depth_warp
         );
-        if let Some(error) = e.centre_error {
+        if let Some(d) = &e.depth_error {
             println!(
-                "  3DGS centres from the true points (source foreground): {:.2} cm",
-                error * 100.0
+                "  3DGS depth error (source foreground): mean {:.2} cm, median {:.2}, 90th \
+                 percentile {:.2}, bias {:+.2}",
+                d.mean * 100.0,
+                d.median * 100.0,
+                d.p90 * 100.0,
+                d.bias * 100.0
             );
         }
         if let Some(dir) = &self.save_predictions {

@@ -41,7 +41,7 @@ use crate::checkpoint::{CHECKPOINTS_DIR, load_model};
 use crate::error::{Result, TrainError};
 use crate::images::{error_map, save_png, tile};
 use crate::log::METRICS_FILE;
-use crate::oracle::{OracleBatch, Swap, draw};
+use crate::oracle::{DepthError, OracleBatch, Swap, draw};
 use crate::predict::{Pairs, forward_pairs, inference_model, synthesise};
 use crate::report::{EvaluationFiles, write_evaluation};
 use crate::tally::{DisoccludedScores, MeanScores, MethodScores, PerAngle, Tally};
@@ -137,11 +137,10 @@ pub struct Evaluation {
     /// The oracle swaps' scores, when asked for ([`EvaluateOptions::oracle`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub oracle: Option<Vec<OracleScores>>,
-    /// With the oracle swaps: the mean distance (metres) of the 3DGS head's Gaussians from the
-    /// dataset's points over the source foreground, the error the depth swap removes
-    /// ([`OracleBatch::centre_distances`]).
+    /// With the oracle swaps: the 3DGS head's depth error over the source foreground, the
+    /// error the depth swap removes ([`OracleBatch::depth_errors`]).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub centre_error: Option<f64>,
+    pub depth_error: Option<DepthError>,
     /// The 3DGS head's render `I_gs` (over the background) on the same views, from a forward
     /// pass with the head; `None` (absent from the JSON) for a model without a 3DGS head.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -328,7 +327,7 @@ pub fn evaluate(
     } else {
         Vec::new()
     };
-    let mut centres = (0.0f64, 0usize);
+    let mut depth_errors: Vec<f32> = Vec::new();
     let mut grids = Vec::new();
     let mut fps_pair = None;
     for (s, subject) in subjects.iter().enumerate() {
@@ -389,8 +388,7 @@ pub fn evaluate(
                 score(&mut gs, g.image.clone().clamp(0.0, 1.0));
                 if options.oracle {
                     let truth = OracleBatch::new(&samples, &g.gaussians);
-                    let (sum, count) = truth.centre_distances();
-                    centres = (centres.0 + sum, centres.1 + count);
+                    depth_errors.extend(truth.depth_errors());
                     let [_, _, h, w] = gt.dims();
                     for (tallies, &swap) in oracle.iter_mut().zip(&Swap::ALL) {
                         let swapped = truth.swapped(swap, footprint, device);
@@ -472,7 +470,7 @@ pub fn evaluate(
             true_depth_warp_sweep,
             speckle,
             oracle,
-            centre_error: options.oracle.then(|| centres.0 / centres.1.max(1) as f64),
+            depth_error: DepthError::of(&depth_errors),
             gs: has_gs.then(|| gs.scores.finish()),
         },
         grids,

@@ -23,6 +23,39 @@ use prism_data::{FOREGROUND, Sample};
 use prism_render::splat::{Gaussians, background, render};
 use serde::Serialize;
 
+/// Summary of the Gaussians' depth errors ([`OracleBatch::depth_errors`]) over every
+/// evaluated view, metres.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct DepthError {
+    /// Mean absolute error.
+    pub mean: f64,
+    /// Median absolute error.
+    pub median: f64,
+    /// 90th percentile of the absolute error.
+    pub p90: f64,
+    /// Mean signed error: positive when the Gaussians sit behind the truth on average.
+    pub bias: f64,
+}
+
+impl DepthError {
+    /// The summary of `errors` (signed, metres); `None` when there are none.
+    pub fn of(errors: &[f32]) -> Option<Self> {
+        if errors.is_empty() {
+            return None;
+        }
+        let n = errors.len() as f64;
+        let mut abs: Vec<f32> = errors.iter().map(|e| e.abs()).collect();
+        abs.sort_by(f32::total_cmp);
+        let at = |q: f64| f64::from(abs[((n - 1.0) * q).round() as usize]);
+        Some(Self {
+            mean: abs.iter().map(|&e| f64::from(e)).sum::<f64>() / n,
+            median: at(0.5),
+            p90: at(0.9),
+            bias: errors.iter().map(|&e| f64::from(e)).sum::<f64>() / n,
+        })
+    }
+}
+
 /// Opacity of a foreground Gaussian in the opacity swap (the true-depth warp's).
 const TRUE_OPACITY: f32 = 0.99;
 /// Opacity of a background Gaussian in the opacity swap: none in effect.
@@ -179,20 +212,22 @@ impl OracleBatch {
         }
     }
 
-    /// How far the model's Gaussians lie from the truth: the sum over the source foreground of
-    /// each centre's distance (metres) to the dataset's point of its pixel, and the number of
-    /// foreground pixels. Both centres are on the pixel's ray, so this is the depth error.
-    pub fn centre_distances(&self) -> (f64, usize) {
-        let mut sum = 0.0f64;
-        let mut count = 0;
-        for (i, _) in self.foreground.iter().enumerate().filter(|(_, fg)| **fg) {
-            let d2: f32 = (0..3)
-                .map(|k| (self.means[3 * i + k] - self.true_means[3 * i + k]).powi(2))
-                .sum();
-            sum += f64::from(d2.sqrt());
-            count += 1;
-        }
-        (sum, count)
+    /// How far the model's Gaussians lie from the truth: for each source foreground pixel, its
+    /// centre's distance from the camera minus that of the dataset's point of the pixel
+    /// (metres; positive: the Gaussian is too far). Both are on the pixel's ray, so this is the
+    /// signed depth error.
+    pub fn depth_errors(&self) -> Vec<f32> {
+        let [_, n] = self.dims;
+        let distance =
+            |p: &[f32], c: [f32; 3]| (0..3).map(|k| (p[k] - c[k]).powi(2)).sum::<f32>().sqrt();
+        (0..self.foreground.len())
+            .filter(|&i| self.foreground[i])
+            .map(|i| {
+                let (centre, _) = self.sources[i / n];
+                distance(&self.means[3 * i..3 * i + 3], centre)
+                    - distance(&self.true_means[3 * i..3 * i + 3], centre)
+            })
+            .collect()
     }
 
     /// The Gaussians with `swap`'s properties taken from the truth, the scales of the scale
@@ -337,39 +372,49 @@ mod tests {
     }
 
     #[test]
-    fn centre_distances_measure_the_depth_error_on_the_foreground() {
+    fn depth_errors_are_signed_distances_on_the_foreground() {
         let device = BackendKind::Ndarray.device().unwrap();
         let samples = vec![sample()];
         let model = wrong(&samples, &device);
-        let (sum, count) = OracleBatch::new(&samples, &model).centre_distances();
+        let errors = OracleBatch::new(&samples, &model).depth_errors();
         // The model's centres at depth 3 against the plane's points at depth 2, on the 16 x 16
-        // foreground square only.
+        // foreground square only: each about a metre too far.
         let camera = &samples[0].source.camera;
-        let want: f64 = (8..24)
+        let want: Vec<f32> = (8..24)
             .flat_map(|y| (8..24).map(move |x| (x, y)))
             .map(|(x, y)| {
                 let (x, y) = (x as f32 + 0.5, y as f32 + 0.5);
-                f64::from((camera.unproject(x, y, 3.0) - camera.unproject(x, y, 2.0)).length())
+                (camera.unproject(x, y, 3.0) - camera.unproject(x, y, 2.0)).length()
             })
-            .sum();
-        assert_eq!(count, 16 * 16);
-        assert!((sum - want).abs() < 1e-3 * want, "{sum} vs {want}");
-        assert!(
-            sum / count as f64 > 0.99,
-            "about a metre each: {}",
-            sum / count as f64
-        );
+            .collect();
+        assert_eq!(errors.len(), 16 * 16);
+        for (e, w) in errors.iter().zip(&want) {
+            assert!((e - w).abs() < 1e-4, "{e} vs {w}");
+        }
+        let summary = DepthError::of(&errors).unwrap();
+        assert!(summary.mean > 0.99 && (summary.bias - summary.mean).abs() < 1e-9);
+        assert!(summary.median <= summary.p90);
+        // Mirrored: the same sizes, the opposite sign.
+        let mirrored: Vec<f32> = errors.iter().map(|e| -e).collect();
+        let flipped = DepthError::of(&mirrored).unwrap();
+        assert_eq!(flipped.mean, summary.mean);
+        assert_eq!(flipped.bias, -summary.bias);
+        assert!(DepthError::of(&[]).is_none());
         // The depth swap puts them on the points; the partial ones keep a share of the error.
-        let full = sum;
         for (swap, share) in [
             (Swap::Depth, 0.0),
             (Swap::HalfDepth, 0.5),
             (Swap::QuarterDepth, 0.25),
         ] {
             let swapped = OracleBatch::new(&samples, &model).swapped(swap, 0.3, &device);
-            let (sum, count) = OracleBatch::new(&samples, &swapped).centre_distances();
-            assert_eq!(count, 16 * 16);
-            assert!((sum - share * full).abs() < 1e-4 * full, "{swap:?}: {sum}");
+            let errors = OracleBatch::new(&samples, &swapped).depth_errors();
+            assert_eq!(errors.len(), 16 * 16);
+            for (e, w) in errors.iter().zip(&want) {
+                assert!(
+                    (e - share * w).abs() < 1e-4,
+                    "{swap:?}: {e} vs {share} x {w}"
+                );
+            }
         }
     }
 

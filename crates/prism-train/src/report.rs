@@ -245,13 +245,17 @@ fn oracle_section(e: &Evaluation) -> Option<String> {
             row.nvs_speckle
         );
     }
-    if let Some(error) = e.centre_error {
+    if let Some(d) = &e.depth_error {
         let _ = writeln!(
             out,
             "\nThe model's Gaussians lie {:.2} cm from the dataset's points on average over the \
-             source foreground (each on its pixel's ray, so this is their depth error): what \
-             the depth swap removes.",
-            error * 100.0
+             source foreground (median {:.2} cm, 90th percentile {:.2} cm; each on its pixel's \
+             ray, so this is their depth error, {:+.2} cm on average with its sign, positive \
+             behind the truth): what the depth swap removes.",
+            d.mean * 100.0,
+            d.median * 100.0,
+            d.p90 * 100.0,
+            d.bias * 100.0
         );
     }
     out.push('\n');
