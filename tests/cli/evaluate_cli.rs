@@ -255,6 +255,7 @@ fn evaluate_writes_every_key_the_report_and_the_grids() {
             "depth",
             "half_depth",
             "quarter_depth",
+            "unbiased",
             "colour",
             "opacity",
             "scale",
@@ -274,9 +275,9 @@ fn evaluate_writes_every_key_the_report_and_the_grids() {
         oracle[0]
     );
     assert!(
-        (psnr(&oracle[7]["gs"]) - psnr(warp)).abs() < 0.1,
+        (psnr(&oracle[8]["gs"]) - psnr(warp)).abs() < 0.1,
         "{:?}",
-        oracle[7]
+        oracle[8]
     );
     for row in oracle {
         assert!(row["gs"]["psnr_disoccluded"].as_f64().unwrap().is_finite());

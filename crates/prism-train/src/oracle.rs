@@ -13,7 +13,8 @@
 //! Every swap is rendered like `I_gs` (over the background, in the target camera), and passed
 //! through the model's NVS decoder as `I_gs` would be, giving the `I_t` the swap would make.
 //! Two partial depth swaps move each foreground centre only part of the way to the truth (the
-//! depth error halved, quartered), to show how the pictures grow with the depth's precision.
+//! depth error halved, quartered), to show how the pictures grow with the depth's precision;
+//! a third moves every centre by the same distance, the mean signed error (the bias removed).
 //! Swapping all four is the true-depth warp drawn with the model's background Gaussians too;
 //! "all but colour" is the true-depth warp with the model's colours. The truth never enters
 //! the model's own predictions: this runs only in evaluation, on datasets with point maps.
@@ -74,6 +75,9 @@ pub enum Swap {
     HalfDepth,
     /// The depth error a quarter of the model's.
     QuarterDepth,
+    /// Every foreground centre moved along its ray by the batch's mean signed depth error (one
+    /// number from the truth): the bias removed, each centre's own error otherwise kept.
+    Unbiased,
     /// The source pixels' colours.
     Colour,
     /// Opacities from the source mask.
@@ -88,11 +92,12 @@ pub enum Swap {
 
 impl Swap {
     /// Every swap, in the report's order.
-    pub const ALL: [Swap; 9] = [
+    pub const ALL: [Swap; 10] = [
         Swap::None,
         Swap::Depth,
         Swap::HalfDepth,
         Swap::QuarterDepth,
+        Swap::Unbiased,
         Swap::Colour,
         Swap::Opacity,
         Swap::Scale,
@@ -107,6 +112,7 @@ impl Swap {
             Swap::Depth => "true depth",
             Swap::HalfDepth => "depth error halved",
             Swap::QuarterDepth => "depth error quartered",
+            Swap::Unbiased => "depth bias removed",
             Swap::Colour => "source colours",
             Swap::Opacity => "opacity from the mask",
             Swap::Scale => "warp-footprint scales",
@@ -122,7 +128,7 @@ impl Swap {
             Swap::Depth | Swap::All | Swap::AllButColour => 0.0,
             Swap::HalfDepth => 0.5,
             Swap::QuarterDepth => 0.25,
-            Swap::None | Swap::Colour | Swap::Opacity | Swap::Scale => 1.0,
+            Swap::None | Swap::Unbiased | Swap::Colour | Swap::Opacity | Swap::Scale => 1.0,
         }
     }
 
@@ -244,6 +250,12 @@ impl OracleBatch {
             self.colours.clone()
         };
         let logit = |p: f32| (p / (1.0 - p)).ln();
+        let bias = if swap == Swap::Unbiased {
+            let errors = self.depth_errors();
+            errors.iter().sum::<f32>() / errors.len().max(1) as f32
+        } else {
+            0.0
+        };
         for pair in 0..b {
             let (centre, focal) = self.sources[pair];
             for i in pair * n..(pair + 1) * n {
@@ -258,6 +270,18 @@ impl OracleBatch {
                         .zip(&self.true_means[range])
                     {
                         *mean = truth + kept * (model - truth);
+                    }
+                }
+                if bias != 0.0 && fg {
+                    // Along the centre's own ray: nearer by the bias.
+                    let mean = &mut means[3 * i..3 * i + 3];
+                    let length = (0..3)
+                        .map(|k| (mean[k] - centre[k]).powi(2))
+                        .sum::<f32>()
+                        .sqrt();
+                    let scale = (length - bias).max(1e-3) / length;
+                    for (m, c) in mean.iter_mut().zip(centre) {
+                        *m = c + scale * (*m - c);
                     }
                 }
                 if swap.opacity() {
@@ -416,6 +440,13 @@ mod tests {
                 );
             }
         }
+        // Without the bias each centre keeps its error less the mean: about 0 on this plane.
+        let swapped = OracleBatch::new(&samples, &model).swapped(Swap::Unbiased, 0.3, &device);
+        let errors = OracleBatch::new(&samples, &swapped).depth_errors();
+        let mean = want.iter().sum::<f32>() / want.len() as f32;
+        for (e, w) in errors.iter().zip(&want) {
+            assert!((e - (w - mean)).abs() < 1e-4, "{e} vs {w} - {mean}");
+        }
     }
 
     #[test]
@@ -449,7 +480,10 @@ mod tests {
                     } else {
                         model
                     };
-                    assert!((mean[k] - want).abs() < 1e-6, "{swap:?} {i}: {mean:?}");
+                    // The unbiased centres move by the bias (checked in the depth-error test).
+                    if swap != Swap::Unbiased || !fg[i] {
+                        assert!((mean[k] - want).abs() < 1e-6, "{swap:?} {i}: {mean:?}");
+                    }
                 }
                 let o = opacity[i];
                 if swap.opacity() {
