@@ -35,11 +35,76 @@ pub fn centres_loss(centres: Tensor<3>, points_gt: Tensor<3>, mask: Tensor<3>) -
     per_image(distance).div(per_image(fg).clamp_min(1.0)).mean()
 }
 
+/// `L_spread`: like [`centres_loss`], but on each residual less its image's foreground mean,
+/// `r - mean_fg(r)` with `r = mu - X_gt`, `[1]`. It penalises the spread of the centres' errors
+/// and not their shared offset: a model whose Gaussians all sit the same distance behind the
+/// surface pays nothing, one whose depth is noisy pays (BENCHMARKS, issue 42: the learnt bias
+/// covers the spread).
+pub fn spread_loss(centres: Tensor<3>, points_gt: Tensor<3>, mask: Tensor<3>) -> Tensor<1> {
+    let [batch, rows, _] = centres.dims();
+    assert_eq!(
+        mask.dims(),
+        [batch, rows, 1],
+        "L_spread: the mask must be [B, N, 1]"
+    );
+    let fg = mask.greater_elem(0.5).float();
+    let count = fg.clone().sum_dim(1).clamp_min(1.0);
+    let residual = centres.sub(points_gt).mul(fg.clone());
+    let mean = residual.clone().sum_dim(1).div(count);
+    centres_loss(
+        residual.sub(mean),
+        Tensor::zeros([batch, rows, 3], &fg.device()),
+        fg,
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use burn::tensor::TensorData;
     use prism_core::BackendKind;
+
+    #[test]
+    fn spread_ignores_a_shared_offset_and_sees_noise() {
+        let device = BackendKind::Ndarray.device().unwrap();
+        let points = Tensor::<3>::from_data(
+            TensorData::new(
+                (0..12).map(|v| v as f32 * 0.1).collect::<Vec<_>>(),
+                [1, 4, 3],
+            ),
+            &device,
+        );
+        let mask = Tensor::<3>::from_data(
+            TensorData::new(vec![1.0f32, 1.0, 1.0, 0.0], [1, 4, 1]),
+            &device,
+        );
+        // All foreground centres 9 cm behind along z, the background one far off: no spread.
+        let offset = Tensor::<3>::from_data(
+            TensorData::new(
+                vec![
+                    0.0f32, 0.0, 0.09, 0.0, 0.0, 0.09, 0.0, 0.0, 0.09, 5.0, 5.0, 5.0,
+                ],
+                [1, 4, 3],
+            ),
+            &device,
+        );
+        let shifted = points.clone() + offset;
+        let value = spread_loss(shifted.clone(), points.clone(), mask.clone()).into_scalar::<f64>();
+        assert!(value.abs() < 1e-6, "{value}");
+        assert!(centres_loss(shifted, points.clone(), mask.clone()).into_scalar::<f64>() > 0.08);
+        // z errors of +0.1, -0.1, 0 (mean 0): spread (0.1 + 0.1 + 0) / 3.
+        let noise = Tensor::<3>::from_data(
+            TensorData::new(
+                vec![
+                    0.0f32, 0.0, 0.1, 0.0, 0.0, -0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                ],
+                [1, 4, 3],
+            ),
+            &device,
+        );
+        let value = spread_loss(points.clone() + noise, points, mask).into_scalar::<f64>();
+        assert!((value - 0.2 / 3.0).abs() < 1e-6, "{value}");
+    }
 
     #[test]
     fn is_the_mean_foreground_distance_per_image_with_its_gradient() {

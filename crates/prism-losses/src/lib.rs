@@ -30,7 +30,7 @@ pub mod ssim;
 pub mod table;
 pub mod weights;
 
-pub use centres::centres_loss;
+pub use centres::{centres_loss, spread_loss};
 pub use distill::{DistillInputs, distill_layers, distill_loss};
 pub use error::LossError;
 pub use image_files::{FolderScores, Scores, load_image, score_files, score_paths};

@@ -9,7 +9,7 @@ use burn::tensor::Tensor;
 
 use crate::{
     DistillInputs, LossError, Lpips, PointLoss, SmplxParams, centres_loss, distill_loss,
-    opacity_loss, point_loss, smplx_loss,
+    opacity_loss, point_loss, smplx_loss, spread_loss,
 };
 
 /// Weights of the objective: the `[losses]` section of the TOML configs. Defaults are the
@@ -51,6 +51,10 @@ pub struct LossWeights {
     /// [`crate::centres`]).
     #[config(default = 0.0)]
     pub gs_centres: f64,
+    /// `l_gs_spread`, weight of `L_spread`, the spread of the centres' errors about their
+    /// image's mean error (not in the paper: 0 there; see [`crate::centres::spread_loss`]).
+    #[config(default = 0.0)]
+    pub gs_spread: f64,
 }
 
 /// Inputs of `L_opacity` (see [`opacity_loss`]).
@@ -186,7 +190,7 @@ impl LossInputs {
 /// The value of every computed term, unweighted, plus the weighted `total`, each `[1]`.
 ///
 /// Names: `nvs_holes`, `nvs_mse`, `nvs_lpips`, `gs_mse`, `gs_lpips`, `gs_opacity`,
-/// `gs_centres`, `pts`,
+/// `gs_centres`, `gs_spread`, `pts`,
 /// `smplx`, `distill` (in this order, those computed only) and `total`.
 #[derive(Clone, Debug)]
 pub struct LossTerms {
@@ -308,10 +312,20 @@ impl Objective {
             add(w.gs_opacity, &value);
             terms.push(("gs_opacity", value));
         }
-        if let Some(c) = inputs.gs_centres.filter(|_| w.gs_centres != 0.0) {
-            let value = centres_loss(c.centres, c.points, c.mask);
-            add(w.gs_centres, &value);
-            terms.push(("gs_centres", value));
+        if let Some(c) = inputs
+            .gs_centres
+            .filter(|_| w.gs_centres != 0.0 || w.gs_spread != 0.0)
+        {
+            if w.gs_centres != 0.0 {
+                let value = centres_loss(c.centres.clone(), c.points.clone(), c.mask.clone());
+                add(w.gs_centres, &value);
+                terms.push(("gs_centres", value));
+            }
+            if w.gs_spread != 0.0 {
+                let value = spread_loss(c.centres, c.points, c.mask);
+                add(w.gs_spread, &value);
+                terms.push(("gs_spread", value));
+            }
         }
         if let Some(p) = inputs.pts.filter(|_| w.pts != 0.0) {
             let loss: PointLoss = point_loss(
