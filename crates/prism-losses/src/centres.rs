@@ -18,21 +18,8 @@ use burn::tensor::Tensor;
 ///
 /// Each image weighs the same (as in `L_pts`), and an image without foreground counts zero.
 pub fn centres_loss(centres: Tensor<3>, points_gt: Tensor<3>, mask: Tensor<3>) -> Tensor<1> {
-    assert_eq!(
-        centres.dims(),
-        points_gt.dims(),
-        "L_centres: centres and points differ in shape"
-    );
-    let [batch, rows, _] = centres.dims();
-    assert_eq!(
-        mask.dims(),
-        [batch, rows, 1],
-        "L_centres: the mask must be [B, N, 1]"
-    );
-    let fg = mask.greater_elem(0.5).float();
-    let distance = centres.sub(points_gt).abs().sum_dim(2).mul(fg.clone());
-    let per_image = |t: Tensor<3>| t.sum_dim(1).reshape([batch]);
-    per_image(distance).div(per_image(fg).clamp_min(1.0)).mean()
+    let (residual, fg) = foreground_residual("L_centres", centres, points_gt, mask);
+    mean_foreground_l1(residual, fg)
 }
 
 /// `L_spread`: like [`centres_loss`], but on each residual less its image's foreground mean,
@@ -41,21 +28,41 @@ pub fn centres_loss(centres: Tensor<3>, points_gt: Tensor<3>, mask: Tensor<3>) -
 /// surface pays nothing, one whose depth is noisy pays (BENCHMARKS, issue 42: the learnt bias
 /// covers the spread).
 pub fn spread_loss(centres: Tensor<3>, points_gt: Tensor<3>, mask: Tensor<3>) -> Tensor<1> {
+    let (residual, fg) = foreground_residual("L_spread", centres, points_gt, mask);
+    let count = fg.clone().sum_dim(1).clamp_min(1.0);
+    let mean = residual.clone().mul(fg.clone()).sum_dim(1).div(count);
+    mean_foreground_l1(residual.sub(mean), fg)
+}
+
+/// `mu - X_gt` and the foreground as 0 / 1, after checking the shapes (`loss` names the term
+/// in the panic message).
+fn foreground_residual(
+    loss: &str,
+    centres: Tensor<3>,
+    points_gt: Tensor<3>,
+    mask: Tensor<3>,
+) -> (Tensor<3>, Tensor<3>) {
+    assert_eq!(
+        centres.dims(),
+        points_gt.dims(),
+        "{loss}: centres and points differ in shape"
+    );
     let [batch, rows, _] = centres.dims();
     assert_eq!(
         mask.dims(),
         [batch, rows, 1],
-        "L_spread: the mask must be [B, N, 1]"
+        "{loss}: the mask must be [B, N, 1]"
     );
-    let fg = mask.greater_elem(0.5).float();
-    let count = fg.clone().sum_dim(1).clamp_min(1.0);
-    let residual = centres.sub(points_gt).mul(fg.clone());
-    let mean = residual.clone().sum_dim(1).div(count);
-    centres_loss(
-        residual.sub(mean),
-        Tensor::zeros([batch, rows, 3], &fg.device()),
-        fg,
-    )
+    (centres.sub(points_gt), mask.greater_elem(0.5).float())
+}
+
+/// `mean_b [ sum_fg |r|_1 / max(N_fg, 1) ]` of residuals `r` `[B, N, 3]` on the foreground
+/// `fg` `[B, N, 1]` (0 / 1), `[1]`.
+fn mean_foreground_l1(residual: Tensor<3>, fg: Tensor<3>) -> Tensor<1> {
+    let [batch, ..] = residual.dims();
+    let distance = residual.abs().sum_dim(2).mul(fg.clone());
+    let per_image = |t: Tensor<3>| t.sum_dim(1).reshape([batch]);
+    per_image(distance).div(per_image(fg).clamp_min(1.0)).mean()
 }
 
 #[cfg(test)]

@@ -3,7 +3,7 @@
 //! - Training objective: [`Objective`] with [`LossWeights`] (the `[losses]` config section)
 //!   combines `L_nvs` and `L_gs` (MSE + LPIPS), [`point_loss`] (`L_pts`), [`smplx_loss`]
 //!   (`L_smplx`), [`distill_loss`] (`L_distill`) and, beyond the paper, [`centres_loss`]
-//!   (`L_centres`) and reports every term by name.
+//!   (`L_centres`) and [`spread_loss`] (`L_spread`), and reports every term by name.
 //! - Metrics: [`psnr()`], [`ssim()`] and [`Lpips::distance`] on `[B, 3, H, W]` tensors in [0, 1],
 //!   per image. [`score_images`] is the one scoring pipeline (all three per image, and
 //!   [`ImageScores::mean`]) of validation, evaluation and [`score_paths`] (image files or

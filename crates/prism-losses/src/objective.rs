@@ -1,8 +1,8 @@
 //! The training objective (paper Sec. 3.3):
 //! `L = l_nvs L_nvs + l_gs L_gs + l_pts L_pts + l_smplx L_smplx + l_distill L_distill`,
 //! with `L_nvs = MSE + l_lpips LPIPS` and `L_gs` alike, plus, beyond the paper,
-//! `l_gs_opacity L_opacity` (see [`crate::opacity`]) and `l_gs_centres L_centres` (see
-//! [`crate::centres`]; both 0 in the paper config).
+//! `l_gs_opacity L_opacity` (see [`crate::opacity`]), `l_gs_centres L_centres` and
+//! `l_gs_spread L_spread` (see [`crate::centres`]; all 0 in the paper config).
 
 use burn::config::Config;
 use burn::tensor::Tensor;
@@ -265,9 +265,8 @@ impl Objective {
 
     /// Evaluates every term that has inputs and a nonzero weight, and the weighted total
     /// `L = l_nvs (MSE + l_lpips LPIPS)_nvs + l_gs (MSE + l_lpips LPIPS)_gs + l_pts L_pts +
-    /// l_smplx L_smplx + l_distill L_distill + l_gs_opacity L_opacity + l_gs_centres L_centres`.
-    /// MSE and LPIPS are
-    /// means over the batch.
+    /// l_smplx L_smplx + l_distill L_distill + l_gs_opacity L_opacity + l_gs_centres L_centres
+    /// + l_gs_spread L_spread`. MSE and LPIPS are means over the batch.
     ///
     /// # Errors
     /// [`LossError::NoTerms`] when nothing was computed.

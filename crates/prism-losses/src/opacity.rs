@@ -73,26 +73,30 @@ mod tests {
     #[test]
     fn pixel_rows_follow_the_pixels_row_major() {
         let device = BackendKind::Ndarray.device().unwrap();
-        let mask = Tensor::<4>::from_data(
-            TensorData::new((0..6).map(|v| v as f32).collect::<Vec<_>>(), [1, 1, 2, 3]),
-            &device,
+        let check = |values: Vec<f32>, shape: [usize; 4], dims: [usize; 3], want: Vec<f32>| {
+            let rows = pixel_rows(Tensor::<4>::from_data(
+                TensorData::new(values, shape),
+                &device,
+            ));
+            assert_eq!(rows.dims(), dims);
+            assert_eq!(rows.into_data().try_into_vec_as::<f32>().unwrap(), want);
+        };
+        // A mask of 2 x 3 pixels.
+        let mask = (0..6).map(|v| v as f32).collect();
+        check(
+            mask,
+            [1, 1, 2, 3],
+            [1, 6, 1],
+            vec![0.0, 1.0, 2.0, 3.0, 4.0, 5.0],
         );
-        let rows = pixel_rows(mask);
-        assert_eq!(rows.dims(), [1, 6, 1]);
-        assert_eq!(
-            rows.into_data().try_into_vec_as::<f32>().unwrap(),
-            vec![0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
-        );
-        // Three channels: channel c of pixel p is 10 c + p; a row holds one pixel's channels.
-        let points = Tensor::<4>::from_data(
-            TensorData::new(vec![0.0f32, 1.0, 10.0, 11.0, 20.0, 21.0], [1, 3, 1, 2]),
-            &device,
-        );
-        let rows = pixel_rows(points);
-        assert_eq!(rows.dims(), [1, 2, 3]);
-        assert_eq!(
-            rows.into_data().try_into_vec_as::<f32>().unwrap(),
-            vec![0.0, 10.0, 20.0, 1.0, 11.0, 21.0]
+        // Three channels of 1 x 2 pixels, channel c of pixel p being 10 c + p: a row holds one
+        // pixel's channels.
+        let points = vec![0.0, 1.0, 10.0, 11.0, 20.0, 21.0];
+        check(
+            points,
+            [1, 3, 1, 2],
+            [1, 2, 3],
+            vec![0.0, 10.0, 20.0, 1.0, 11.0, 21.0],
         );
     }
 }

@@ -224,14 +224,12 @@ impl OracleBatch {
     /// signed depth error.
     pub fn depth_errors(&self) -> Vec<f32> {
         let [_, n] = self.dims;
-        let distance =
-            |p: &[f32], c: [f32; 3]| (0..3).map(|k| (p[k] - c[k]).powi(2)).sum::<f32>().sqrt();
         (0..self.foreground.len())
             .filter(|&i| self.foreground[i])
             .map(|i| {
                 let (centre, _) = self.sources[i / n];
-                distance(&self.means[3 * i..3 * i + 3], centre)
-                    - distance(&self.true_means[3 * i..3 * i + 3], centre)
+                distance_from(centre, &self.means[3 * i..3 * i + 3])
+                    - distance_from(centre, &self.true_means[3 * i..3 * i + 3])
             })
             .collect()
     }
@@ -275,10 +273,7 @@ impl OracleBatch {
                 if bias != 0.0 && fg {
                     // Along the centre's own ray: nearer by the bias.
                     let mean = &mut means[3 * i..3 * i + 3];
-                    let length = (0..3)
-                        .map(|k| (mean[k] - centre[k]).powi(2))
-                        .sum::<f32>()
-                        .sqrt();
+                    let length = distance_from(centre, mean);
                     let scale = (length - bias).max(1e-3) / length;
                     for (m, c) in mean.iter_mut().zip(centre) {
                         *m = c + scale * (*m - c);
@@ -288,10 +283,7 @@ impl OracleBatch {
                     opacity[i] = logit(if fg { TRUE_OPACITY } else { BACKGROUND_OPACITY });
                 }
                 if swap.scale() {
-                    let distance = (0..3)
-                        .map(|k| (means[3 * i + k] - centre[k]).powi(2))
-                        .sum::<f32>()
-                        .sqrt();
+                    let distance = distance_from(centre, &means[3 * i..3 * i + 3]);
                     let log_scale = (footprint * distance / focal).max(1e-9).ln();
                     log_scales[3 * i..3 * i + 3].fill(log_scale);
                     rotations[4 * i..4 * i + 4].copy_from_slice(&[1.0, 0.0, 0.0, 0.0]);
@@ -309,6 +301,15 @@ impl OracleBatch {
             features: tensor(colours, 3),
         }
     }
+}
+
+/// The distance of point `p` (3 values) from the camera centre `c`.
+fn distance_from(c: [f32; 3], p: &[f32]) -> f32 {
+    p.iter()
+        .zip(c)
+        .map(|(p, c)| (p - c).powi(2))
+        .sum::<f32>()
+        .sqrt()
 }
 
 /// `gaussians` drawn in each sample's (first) target camera over `bg`, `[B, 3, H, W]` in

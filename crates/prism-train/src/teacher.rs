@@ -85,16 +85,17 @@ impl TeacherLoss {
                 let holes = batch.target_mask.clone() * uncovered;
                 inputs = inputs.with_nvs_holes(holes.detach());
             }
+            let mask = pixel_rows(batch.source_mask.clone());
             inputs = inputs
                 .with_gs(gaussians.image.clone(), target)
                 .with_gs_opacity(OpacityInputs {
                     logits: gaussians.gaussians.opacity_logits.clone(),
-                    mask: pixel_rows(batch.source_mask.clone()),
+                    mask: mask.clone(),
                 })
                 .with_gs_centres(CentreInputs {
                     centres: gaussians.gaussians.means.clone(),
                     points: pixel_rows(batch.source_points.clone()),
-                    mask: pixel_rows(batch.source_mask.clone()),
+                    mask,
                 });
         }
         if let Some(points) = &out.points {
