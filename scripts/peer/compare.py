@@ -7,7 +7,11 @@ cores to themselves) and prints a Markdown table of both times and prism / PyTor
 
 usage (from the repository root, with a Python that has torch):
     python scripts/peer/compare.py [--prism target/release/prism] [--res 128,256]
-        [--backend flex] [--threads 2] [--iters 10] [--train-steps 10] [--json out.json]
+        [--backend flex] [--threads 2] [--iters 10] [--train-steps 10] [--precision bf16]
+        [--json out.json]
+
+`--precision bf16` runs prism's blocks with `--precision bf16` and PyTorch under bf16
+autocast (`torch_backbone.py --dtype bf16`).
 """
 import argparse
 import json
@@ -110,14 +114,17 @@ def main():
     ap.add_argument("--iters", type=int, default=10)
     ap.add_argument("--train-steps", type=int, default=10,
                     help="training steps on each side (the median after 2 warm-up steps)")
+    ap.add_argument("--precision", choices=["f32", "bf16"], default="f32",
+                    help="both sides' precision: f32, or prism's bf16 against bf16 autocast")
     ap.add_argument("--json", help="also write the rows to this file")
     args = ap.parse_args()
     if not os.path.isfile(args.prism):
         sys.exit(f"{args.prism}: no such file (build it with `cargo build --release`)")
     prism = run_prism(args.prism, CONFIG, args.res, args.backend, args.warmup, args.iters,
-                      args.train_steps)
+                      args.train_steps, extra=["--precision", args.precision])
     torch_rows = run_torch(backbone_shapes(CONFIG), args.res, args.threads, args.warmup,
-                           args.iters, TRAIN_RES, args.train_steps)
+                           args.iters, TRAIN_RES, args.train_steps,
+                           extra=["--dtype", args.precision])
     rows = []
     print("| what | res | prism ms | PyTorch ms | prism / PyTorch |")
     print("|---|---|---|---|---|")

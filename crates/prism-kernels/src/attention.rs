@@ -12,6 +12,7 @@ use multiversion::multiversion;
 use rayon::prelude::*;
 
 use crate::math;
+use crate::matrix::View;
 
 /// Query rows per block.
 const BLOCK: usize = 64;
@@ -38,48 +39,6 @@ impl Dims {
             self.heads * self.per_head(),
             "attention: {name} has {len} values, expected {:?}",
             self
-        );
-    }
-}
-
-/// A strided matrix view over a slice.
-#[derive(Clone, Copy)]
-struct View<'a> {
-    data: &'a [f32],
-    rows: usize,
-    cols: usize,
-    row_stride: usize,
-    col_stride: usize,
-}
-
-impl<'a> View<'a> {
-    /// Row-major `rows x cols`.
-    fn rows(data: &'a [f32], rows: usize, cols: usize) -> Self {
-        Self {
-            data,
-            rows,
-            cols,
-            row_stride: cols,
-            col_stride: 1,
-        }
-    }
-
-    /// The transpose of a row-major `cols x rows` matrix.
-    fn transposed(data: &'a [f32], rows: usize, cols: usize) -> Self {
-        Self {
-            data,
-            rows,
-            cols,
-            row_stride: 1,
-            col_stride: rows,
-        }
-    }
-
-    fn check(&self) {
-        let last = (self.rows - 1) * self.row_stride + (self.cols - 1) * self.col_stride;
-        assert!(
-            self.rows > 0 && self.cols > 0 && last < self.data.len(),
-            "matrix view out of bounds"
         );
     }
 }

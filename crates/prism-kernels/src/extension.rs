@@ -13,8 +13,10 @@ use burn::backend::{Autodiff, Backend, Flex, NdArray, TensorMetadata, backend_ex
 use burn::tensor::Shape;
 
 use crate::attention::{self, Dims};
+use crate::bf16::{self, Bf16Kernel};
 use crate::elementwise;
 use crate::host::HostTensors;
+use crate::matrix::View;
 use crate::norm::{self, NormKind};
 
 /// Fused operations of the backbone. Every method takes and returns f32 tensors.
@@ -40,6 +42,9 @@ pub trait FusedOps: Backend {
         k: FloatTensor<Self>,
         v: FloatTensor<Self>,
     ) -> FloatTensor<Self>;
+    /// `a b` for `a` of `[.., m, k]` and `b` of `[k, n]`, both rounded to bf16 and the
+    /// products summed in f32 (see [`Bf16Kernel`]).
+    fn fused_matmul_bf16(a: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self>;
 }
 
 /// GELU through the host kernel.
@@ -149,6 +154,54 @@ fn attention_backward<B: HostTensors>(
     [dq, dk, dv].map(|g| B::tensor(g, shape.clone(), &device))
 }
 
+/// The sizes `(m, k, n)` of a product of `[.., m, k]` by `[k, n]`, `m` taking in the leading
+/// dimensions.
+fn product_dims(a: &Shape, b: &Shape) -> (usize, usize, usize) {
+    let k = a[a.num_dims() - 1];
+    assert!(
+        b.num_dims() == 2 && b[0] == k,
+        "bf16 matmul takes [.., m, k] by [k, n], got {a:?} by {b:?}"
+    );
+    (a.num_elements() / k.max(1), k, b[1])
+}
+
+/// The row-major `a b` through the chosen bf16 kernel (zeros when the inner size is 0).
+fn bf16_product(a: View<'_>, b: View<'_>) -> Vec<f32> {
+    if a.rows == 0 || b.cols == 0 || a.cols == 0 {
+        return vec![0.0; a.rows * b.cols];
+    }
+    bf16::matmul(Bf16Kernel::chosen(), a, b)
+}
+
+/// `a b` in bf16 products through the host kernel.
+fn matmul_bf16_forward<B: HostTensors>(a: FloatTensor<B>, b: FloatTensor<B>) -> FloatTensor<B> {
+    let (a_shape, device) = (a.shape(), a.device());
+    let (m, k, n) = product_dims(&a_shape, &b.shape());
+    let (a, b) = (B::values(a), B::values(b));
+    let c = bf16_product(View::rows(&a, m, k), View::rows(&b, k, n));
+    let mut shape = a_shape;
+    let last = shape.num_dims() - 1;
+    shape[last] = n;
+    B::tensor(c, shape, &device)
+}
+
+/// `(da, db) = (g b^T, a^T g)` in bf16 products through the host kernel, `a` of all
+/// leading dimensions taken as rows.
+fn matmul_bf16_backward<B: HostTensors>(
+    (a, b): (FloatTensor<B>, FloatTensor<B>),
+    grad: FloatTensor<B>,
+) -> [FloatTensor<B>; 2] {
+    let (a_shape, b_shape, device) = (a.shape(), b.shape(), a.device());
+    let (m, k, n) = product_dims(&a_shape, &b_shape);
+    let (a, b, g) = (B::values(a), B::values(b), B::values(grad));
+    let da = bf16_product(View::rows(&g, m, n), View::transposed(&b, n, k));
+    let db = bf16_product(View::transposed(&a, k, m), View::rows(&g, m, n));
+    [
+        B::tensor(da, a_shape, &device),
+        B::tensor(db, b_shape, &device),
+    ]
+}
+
 /// The concrete CPU backends: the host kernels directly.
 macro_rules! host_fused_ops {
     ($backend:ty) => {
@@ -179,6 +232,10 @@ macro_rules! host_fused_ops {
                 v: FloatTensor<Self>,
             ) -> FloatTensor<Self> {
                 attention_forward::<Self>(q, k, v).0
+            }
+
+            fn fused_matmul_bf16(a: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self> {
+                matmul_bf16_forward::<Self>(a, b)
             }
         }
     };
@@ -229,6 +286,18 @@ impl<B: HostTensors> Backward<B, 3> for AttentionBackward {
 
     fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
         backward_each::<B, _, 3>(ops, grads, attention_backward::<B>);
+    }
+}
+
+/// Backward step of [`FusedOps::fused_matmul_bf16`].
+#[derive(Debug)]
+struct MatmulBf16Backward;
+
+impl<B: HostTensors> Backward<B, 2> for MatmulBf16Backward {
+    type State = (FloatTensor<B>, FloatTensor<B>);
+
+    fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
+        backward_each::<B, _, 2>(ops, grads, matmul_bf16_backward::<B>);
     }
 }
 
@@ -302,6 +371,22 @@ impl<B: HostTensors, C: CheckpointStrategy> FusedOps for Autodiff<B, C> {
                 prep.finish(state, o)
             }
             OpsKind::UnTracked(prep) => prep.finish(attention_forward::<B>(q, k, v).0),
+        }
+    }
+
+    fn fused_matmul_bf16(a: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self> {
+        let nodes = [a.node(), b.node()];
+        let (a, b) = (a.into_primitive(), b.into_primitive());
+        match MatmulBf16Backward
+            .prepare::<C>(nodes)
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                let c = matmul_bf16_forward::<B>(a.clone(), b.clone());
+                prep.finish((a, b), c)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(matmul_bf16_forward::<B>(a, b)),
         }
     }
 }

@@ -19,27 +19,36 @@
 //! the CPU), so a model calls them on every backend.
 
 mod attention;
+mod bf16;
 #[cfg(any(feature = "wgpu", feature = "cuda"))]
 pub mod device;
 mod elementwise;
 mod extension;
 mod host;
 mod math;
+mod matrix;
 mod norm;
 pub mod unfused;
 
 use burn::backend::{Dispatch, DispatchDevice};
-use burn::tensor::{DType, Tensor};
+use burn::nn::Linear;
+use burn::tensor::{DType, Device, Tensor};
 
+pub use bf16::Bf16Kernel;
 pub use extension::FusedOps;
 
 /// Whether `x` runs the fused kernels: f32 on flex or ndarray (with or without autodiff).
 pub fn is_fused<const D: usize>(x: &Tensor<D>) -> bool {
-    x.dtype() == DType::F32
-        && matches!(
-            x.device().inner().as_dispatch(),
-            DispatchDevice::Flex(_) | DispatchDevice::NdArray(_)
-        )
+    x.dtype() == DType::F32 && is_host(&x.device())
+}
+
+/// Whether `device` is one of the CPU backends the host kernels run on: flex or ndarray (with
+/// or without autodiff).
+pub fn is_host(device: &Device) -> bool {
+    matches!(
+        device.clone().inner().as_dispatch(),
+        DispatchDevice::Flex(_) | DispatchDevice::NdArray(_)
+    )
 }
 
 /// `GELU(x) = x Phi(x)` element-wise (the exact, erf-based GELU).
@@ -73,6 +82,34 @@ pub fn rms_norm<const D: usize>(x: Tensor<D>, gamma: Tensor<1>, eps: f64) -> Ten
         gamma.into_dispatch(),
         eps,
     ))
+}
+
+/// `x w` with both operands rounded to bf16 and the products summed in f32: the matrix
+/// products of `--precision bf16` on the CPU, for `x` of `[.., m, k]` and `w` of `[k, n]`.
+/// On f32 tensors of the CPU backends: the host kernel [`Bf16Kernel::chosen`] picks (one
+/// autodiff node, its backward pass in bf16 products too). Elsewhere: Burn's matmul of the
+/// operands cast to bf16 ([`unfused::matmul_bf16`]).
+pub fn matmul_bf16<const D: usize>(x: Tensor<D>, w: Tensor<2>) -> Tensor<D> {
+    if !is_fused(&x) || w.dtype() != DType::F32 {
+        return unfused::matmul_bf16(x, w);
+    }
+    Tensor::from_dispatch(<Dispatch as FusedOps>::fused_matmul_bf16(
+        x.into_dispatch(),
+        w.into_dispatch(),
+    ))
+}
+
+/// A `Linear` layer on `x` with its product's operands in bf16: for f32 `x`, [`matmul_bf16`]
+/// and the bias added in f32; for `x` in half precision, Burn's layer in that precision.
+pub fn linear_bf16<const D: usize>(layer: &Linear, x: Tensor<D>) -> Tensor<D> {
+    if x.dtype() != DType::F32 {
+        return layer.forward(x);
+    }
+    let y = matmul_bf16(x, layer.weight.val());
+    match &layer.bias {
+        Some(bias) => y + bias.val().unsqueeze(),
+        None => y,
+    }
 }
 
 /// Softmax attention `softmax(q k^T / sqrt(d_h)) v` on `[B, H, T, d_h]` tensors of one shape.

@@ -37,3 +37,10 @@ pub fn attention(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
     let scores = q.matmul(k.swap_dims(2, 3)) * (1.0 / (head_dim as f64).sqrt());
     softmax(scores, 3).matmul(v)
 }
+
+/// `x w` with both operands rounded to bf16 and an f32 result, as Burn's matmul of the
+/// operands cast to bf16 and back to f32 (`x` of `[.., m, k]`, `w` of `[k, n]`).
+pub fn matmul_bf16<const D: usize>(x: Tensor<D>, w: Tensor<2>) -> Tensor<D> {
+    let round = |t: Tensor<D>| t.cast(DType::BF16).cast(DType::F32);
+    round(x).matmul(round(w.unsqueeze()))
+}

@@ -5,7 +5,9 @@
 #![allow(deprecated)]
 
 use burn::tensor::{Device, Distribution, Tensor};
-use prism_kernels::{attention, gelu, is_fused, layer_norm, rms_norm, unfused};
+use prism_kernels::{
+    Bf16Kernel, attention, gelu, is_fused, layer_norm, matmul_bf16, rms_norm, unfused,
+};
 
 fn devices() -> [(&'static str, Device); 2] {
     [("ndarray", Device::ndarray()), ("flex", Device::flex())]
@@ -201,4 +203,129 @@ fn half_precision_norms_take_their_statistics_in_f32() {
     // f16 keeps about 3 digits of the normalised values (|y| up to a few units).
     let err = max_diff(got.cast(burn::tensor::DType::F32), want);
     assert!(err < 2e-2, "f16 LayerNorm differs by {err}");
+}
+
+/// The bf16 products against Burn's matmul of the operands cast to bf16 (on flex: ndarray
+/// has no bf16), on ndarray and flex: values, and both gradients under autodiff. Burn's
+/// reference rounds each gradient to bf16 after its product (the cast's backward pass) where
+/// the kernel rounds the output gradient before it, so the gradients agree to bf16's
+/// precision, not f32's.
+#[test]
+fn bf16_matmul_matches_burn() {
+    eprintln!("bf16 kernel: {:?}", Bf16Kernel::chosen());
+    let reference = Device::flex().autodiff();
+    reference.seed(5);
+    let (x, w, g) = (
+        random([2, 37, 48], &reference).require_grad(),
+        random([48, 70], &reference).require_grad(),
+        random([2, 37, 70], &reference),
+    );
+    let want = unfused::matmul_bf16(x.clone(), w.clone());
+    let grads = (want.clone() * g.clone()).sum().backward();
+    let want = [
+        values(want),
+        values(x.grad(&grads).unwrap()),
+        values(w.grad(&grads).unwrap()),
+    ];
+    let relative = |got: Vec<f32>, want: &[f32]| {
+        let scale = want.iter().fold(1.0f32, |m, v| m.max(v.abs()));
+        got.iter()
+            .zip(want)
+            .map(|(p, q)| (p - q).abs())
+            .fold(0.0, f32::max)
+            / scale
+    };
+    for (backend, device) in devices() {
+        let on = |t: Tensor<3>| Tensor::<3>::from_data(t.inner().into_data(), &device);
+        let plain = matmul_bf16(
+            on(x.clone()),
+            Tensor::from_data(w.clone().inner().into_data(), &device),
+        );
+        let err = relative(values(plain), &want[0]);
+        assert!(
+            err < 1e-6,
+            "bf16 matmul on {backend}: forward differs by {err}"
+        );
+
+        let ad = device.autodiff();
+        let xa = Tensor::<3>::from_data(x.clone().inner().into_data(), &ad).require_grad();
+        let wa = Tensor::<2>::from_data(w.clone().inner().into_data(), &ad).require_grad();
+        let ga = Tensor::<3>::from_data(g.clone().inner().into_data(), &ad);
+        let grads = (matmul_bf16(xa.clone(), wa.clone()) * ga).sum().backward();
+        let dx = relative(values(xa.grad(&grads).unwrap()), &want[1]);
+        let dw = relative(values(wa.grad(&grads).unwrap()), &want[2]);
+        assert!(
+            dx < 1e-2 && dw < 1e-2,
+            "bf16 matmul on {backend}: gradients differ by {dx}, {dw}"
+        );
+    }
+}
+
+/// On operands and output weights that bf16 holds exactly (multiples of 1/8 up to 4) every
+/// product and sum is exact: the values and both gradients equal the f32 products', and
+/// central differences with a step of 1/8 (which keeps the operands exact) give the same
+/// gradient.
+#[test]
+fn bf16_matmul_is_exact_where_bf16_holds_the_values() {
+    for (backend, device) in devices() {
+        let ad = device.clone().autodiff();
+        let lattice = |shape: Vec<usize>, seed: u64| {
+            device.seed(seed);
+            let t = Tensor::<3>::random(shape, Distribution::Uniform(-4.0, 4.0), &device);
+            (t * 8.0).round() / 8.0
+        };
+        let x = lattice(vec![3, 5, 24], 1);
+        let w = lattice(vec![1, 24, 40], 2).squeeze_dim::<2>(0);
+        let g = lattice(vec![3, 5, 40], 3);
+        // In f64 from the (exact) values, so that the sum is exact too.
+        let gv = values(g.clone());
+        let loss = |x: Tensor<3>| -> f64 {
+            let y = values(matmul_bf16(x, w.clone()));
+            y.iter().zip(&gv).map(|(a, b)| *a as f64 * *b as f64).sum()
+        };
+        let exact = x.clone().matmul(w.clone().unsqueeze());
+        assert_eq!(
+            max_diff(matmul_bf16(x.clone(), w.clone()), exact),
+            0.0,
+            "{backend}"
+        );
+
+        let on_ad = |t: Tensor<3>| Tensor::<3>::from_data(t.into_data(), &ad).require_grad();
+        let (xa, xb) = (on_ad(x.clone()), on_ad(x.clone()));
+        let wa = Tensor::<2>::from_data(w.clone().into_data(), &ad).require_grad();
+        let wb = Tensor::<2>::from_data(w.clone().into_data(), &ad).require_grad();
+        let gad = Tensor::<3>::from_data(g.clone().into_data(), &ad);
+        let ga = (matmul_bf16(xa.clone(), wa.clone()) * gad.clone())
+            .sum()
+            .backward();
+        let gb = (xb.clone().matmul(wb.clone().unsqueeze()) * gad)
+            .sum()
+            .backward();
+        let dx = xa.grad(&ga).unwrap();
+        assert_eq!(
+            max_diff(dx.clone(), xb.grad(&gb).unwrap()),
+            0.0,
+            "{backend}: dx"
+        );
+        assert_eq!(
+            max_diff(wa.grad(&ga).unwrap(), wb.grad(&gb).unwrap()),
+            0.0,
+            "{backend}: dw"
+        );
+
+        let dx = values(dx);
+        let h = 0.125;
+        for i in [0, 7, 40, 119] {
+            let bump = |sign: f32| {
+                let mut v = values(x.clone());
+                v[i] += sign * h;
+                loss(Tensor::from_data(
+                    burn::tensor::TensorData::new(v, [3, 5, 24]),
+                    &device,
+                ))
+            };
+            let fd = (bump(1.0) - bump(-1.0)) / (2.0 * h as f64);
+            assert_eq!(fd, dx[i] as f64, "{backend}: central difference of x[{i}]");
+        }
+    }
 }

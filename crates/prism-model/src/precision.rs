@@ -105,16 +105,21 @@ impl Prism {
     }
 
     /// The model with its transformer blocks computing in `precision` and their weights
-    /// stored in it, for inference. Storing the weights in half precision halves their memory
-    /// and saves casting every weight at every forward pass (one more kernel per weight per
-    /// block, and a second copy of it), which is why inference stores them so; a model to be
-    /// trained keeps `f32` weights ([`Prism::with_compute_precision`]), since an optimizer
-    /// step on half-precision weights would round small updates away. [`Precision::F32`] gives
-    /// the blocks back their training precision (exactly, from `f32`; after a round trip
-    /// through half precision the rounding stays).
+    /// stored in the dtype they compute in ([`PrismBlock::working_dtype`]: bf16 on the CPU
+    /// backends keeps f32 weights), for inference. Storing the weights in half precision
+    /// halves their memory and saves casting every weight at every forward pass (one more
+    /// kernel per weight per block, and a second copy of it), which is why inference stores
+    /// them so; a model to be trained keeps `f32` weights ([`Prism::with_compute_precision`]),
+    /// since an optimizer step on half-precision weights would round small updates away.
+    /// [`Precision::F32`] gives the blocks back their training precision (exactly, from
+    /// `f32`; after a round trip through half precision the rounding stays).
     pub fn with_block_precision(self, precision: Precision) -> Self {
         let mut model = self.with_compute_precision(precision);
-        let mut mapper = CastParams(precision.dtype());
+        let dtype = match (model.blocks().next(), model.devices().first()) {
+            (Some(block), Some(device)) => block.working_dtype(device),
+            _ => precision.dtype(),
+        };
+        let mut mapper = CastParams(dtype);
         model.stage_one = model.stage_one.map(&mut mapper);
         model.stage_three = model.stage_three.map(&mut mapper);
         model

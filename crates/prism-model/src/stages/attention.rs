@@ -9,6 +9,8 @@ use burn::tensor::{DType, Device, FloatDType, Tensor};
 use prism_core::axes::permute;
 use serde::{Deserialize, Serialize};
 
+use super::linear;
+
 /// The attention a transformer block computes. Both kinds use the same parameters, so a block
 /// switches kind without new weights (the paper's linear-attention stitching).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -161,6 +163,7 @@ impl SelfAttentionConfig {
             linear_eps: self.linear_eps,
             kind: self.kind,
             feature_map: self.feature_map,
+            bf16_products: false,
         }
     }
 }
@@ -184,9 +187,19 @@ pub struct SelfAttention {
     kind: AttentionKind,
     #[module(skip)]
     feature_map: FeatureMap,
+    /// The `qkv` and output products with bf16 operands (the block's bf16 on the CPU
+    /// backends).
+    #[module(skip)]
+    bf16_products: bool,
 }
 
 impl SelfAttention {
+    /// Whether the `qkv` and output products take bf16 operands (f32 inputs only; see
+    /// [`prism_kernels::linear_bf16`]).
+    pub(crate) fn set_bf16_products(&mut self, bf16: bool) {
+        self.bf16_products = bf16;
+    }
+
     /// The attention kind this layer computes.
     pub fn kind(&self) -> AttentionKind {
         self.kind
@@ -215,8 +228,7 @@ impl SelfAttention {
         // [B, T, 3, H, d_h] -> [3 B, H, T, d_h]: one copy into head-major order, after which q,
         // k and v are contiguous slices of it (no copy each).
         let qkv = permute(
-            self.qkv
-                .forward(x)
+            linear(&self.qkv, x, self.bf16_products)
                 .reshape([batch, tokens, 3, self.heads, head_dim]),
             [2, 0, 3, 1, 4],
         )
@@ -238,7 +250,7 @@ impl SelfAttention {
             AttentionKind::Linear => linear_attention(q, k, v, self.feature_map, self.linear_eps),
         };
         let merged = heads_out.swap_dims(1, 2).reshape([batch, tokens, width]);
-        self.out.forward(merged)
+        linear(&self.out, merged, self.bf16_products)
     }
 }
 

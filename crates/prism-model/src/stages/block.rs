@@ -3,10 +3,10 @@
 use burn::config::Config;
 use burn::module::Module;
 use burn::nn::{Initializer, LayerNorm, LayerNormConfig, Linear, LinearConfig};
-use burn::tensor::{DType, Device, Tensor};
+use burn::tensor::{DType, Device, FloatDType, Tensor};
 
 use super::attention::{AttentionKind, FeatureMap, SelfAttention, SelfAttentionConfig};
-use super::cast;
+use super::{cast, linear};
 use crate::precision::{CastParams, Precision};
 
 /// Configuration of a [`PrismBlock`].
@@ -64,7 +64,7 @@ impl PrismBlockConfig {
             .with_norm_eps(self.norm_eps)
             .init(device);
         let hidden = self.width * self.mlp_ratio;
-        let linear = |d_in: usize, d_out: usize, std: f64| {
+        let layer = |d_in: usize, d_out: usize, std: f64| {
             LinearConfig::new(d_in, d_out)
                 .with_bias(false)
                 .with_initializer(Initializer::Normal { mean: 0.0, std })
@@ -75,8 +75,9 @@ impl PrismBlockConfig {
             attention,
             mlp_norm: norm(),
             mlp: Mlp {
-                fc_in: linear(self.width, hidden, self.init_std),
-                fc_out: linear(hidden, self.width, self.out_init_std()),
+                fc_in: layer(self.width, hidden, self.init_std),
+                fc_out: layer(hidden, self.width, self.out_init_std()),
+                bf16_products: false,
             },
             norm_eps: self.norm_eps,
             compute: Precision::F32,
@@ -91,13 +92,20 @@ pub struct Mlp {
     pub fc_in: Linear,
     /// Output projection `[r d, d]` (depth-scaled initialisation).
     pub fc_out: Linear,
+    /// Both products with bf16 operands (the block's bf16 on the CPU backends).
+    #[module(skip)]
+    bf16_products: bool,
 }
 
 impl Mlp {
     /// `fc_out(GELU(fc_in(x)))` (GELU fused on the CPU backends, see [`prism_kernels`]).
     pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
-        self.fc_out
-            .forward(prism_kernels::gelu(self.fc_in.forward(x)))
+        let hidden = linear(&self.fc_in, x, self.bf16_products);
+        linear(
+            &self.fc_out,
+            prism_kernels::gelu(hidden),
+            self.bf16_products,
+        )
     }
 }
 
@@ -127,11 +135,11 @@ pub struct PrismBlock {
 
 impl PrismBlock {
     /// The block on `x` (`[B, T, d]`), computed in the block's compute precision: `x` and the
-    /// weights are cast to it (no op for those already in it; on tracked weights the cast is
-    /// differentiable, so their gradients come back in their own dtype). The output is in the
-    /// compute precision.
+    /// weights are cast to its dtype ([`PrismBlock::working_dtype`]; no op for those already
+    /// in it; on tracked weights the cast is differentiable, so their gradients come back in
+    /// their own dtype). The output is in that dtype.
     pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
-        let dtype = self.compute.dtype();
+        let dtype = self.working_dtype(&x.device());
         let x = cast(x, dtype);
         if self.dtype() == DType::from(dtype) {
             self.forward_as_stored(x)
@@ -172,6 +180,21 @@ impl PrismBlock {
     /// Sets the precision the block computes in; the stored weights are not touched.
     pub fn set_compute_precision(&mut self, precision: Precision) {
         self.compute = precision;
+        let bf16 = precision == Precision::Bf16;
+        self.mlp.bf16_products = bf16;
+        self.attention.set_bf16_products(bf16);
+    }
+
+    /// The dtype the block's activations and weights take on `device`: the compute
+    /// precision's, except bf16 on the CPU backends, where they stay f32 and the matrix
+    /// products of the attention and MLP layers take bf16 operands
+    /// ([`prism_kernels::matmul_bf16`]: AVX512-BF16 where the CPU has it); the norms, GELU and
+    /// attention's softmax then run the fused f32 kernels, as f32 does.
+    pub fn working_dtype(&self, device: &Device) -> FloatDType {
+        match self.compute {
+            Precision::Bf16 if prism_kernels::is_host(device) => FloatDType::F32,
+            precision => precision.dtype(),
+        }
     }
 
     /// The block's attention kind.

@@ -5,6 +5,7 @@ pub(crate) mod attention;
 pub(crate) mod block;
 
 use burn::module::Module;
+use burn::nn::Linear;
 use burn::tensor::{DType, FloatDType, Tensor};
 
 use block::PrismBlock;
@@ -77,6 +78,20 @@ pub(crate) fn cast<const D: usize>(x: Tensor<D>, dtype: impl Into<DType>) -> Ten
         x
     } else {
         x.cast(FloatDType::from(dtype))
+    }
+}
+
+/// `layer` on `x`, its product's operands rounded to bf16 when `bf16_products` (the blocks'
+/// bf16 on the CPU backends, see [`prism_kernels::linear_bf16`]), Burn's layer otherwise.
+pub(crate) fn linear<const D: usize>(
+    layer: &Linear,
+    x: Tensor<D>,
+    bf16_products: bool,
+) -> Tensor<D> {
+    if bf16_products {
+        prism_kernels::linear_bf16(layer, x)
+    } else {
+        layer.forward(x)
     }
 }
 

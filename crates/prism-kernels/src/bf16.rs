@@ -1,0 +1,525 @@
+//! Matrix products with bf16 operands and f32 accumulation, for `--precision bf16` on the CPU.
+//!
+//! Both operands are rounded to bf16 (to nearest, ties to even) and their products summed in
+//! f32, as AVX512-BF16's `vdpbf16ps` computes them: the product of two bf16 values is exact
+//! in f32, so the result differs from the f32 product of the rounded operands only in the
+//! order of the f32 sums. Two kernels compute it, chosen at run time ([`Bf16Kernel::chosen`]):
+//! `vdpbf16ps` where the CPU has AVX512-BF16 (two products per f32 lane and instruction, half
+//! the bytes per operand), and elsewhere the rounded operands' f32 product through `gemm`,
+//! which gives the same values at f32's speed.
+
+use std::sync::OnceLock;
+
+use gemm::{Parallelism, gemm};
+use rayon::prelude::*;
+
+use crate::matrix::View;
+
+/// The code that computes a product of bf16 operands.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Bf16Kernel {
+    /// AVX512-BF16's `vdpbf16ps` (with AVX512-F and -BW for the packing).
+    Avx512Bf16,
+    /// The operands rounded to bf16 and multiplied as f32 with `gemm`: the same values, at
+    /// f32's speed.
+    Rounded,
+}
+
+impl Bf16Kernel {
+    /// The fastest kernel this CPU runs.
+    pub fn detect() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        if is_x86_feature_detected!("avx512f")
+            && is_x86_feature_detected!("avx512bw")
+            && is_x86_feature_detected!("avx512bf16")
+        {
+            return Self::Avx512Bf16;
+        }
+        Self::Rounded
+    }
+
+    /// [`Bf16Kernel::detect`], once per process; the first call on a CPU without AVX512-BF16
+    /// says on stderr that bf16 products run no faster than f32 there.
+    pub fn chosen() -> Self {
+        static CHOSEN: OnceLock<Bf16Kernel> = OnceLock::new();
+        *CHOSEN.get_or_init(|| {
+            let kernel = Self::detect();
+            if kernel == Self::Rounded {
+                eprintln!(
+                    "prism: this CPU has no AVX512-BF16: bf16 matrix products run as f32 \
+                     products of bf16-rounded operands (the same values, no faster than f32)"
+                );
+            }
+            kernel
+        })
+    }
+
+    /// Whether this CPU runs the kernel.
+    pub fn runs_here(self) -> bool {
+        self == Self::Rounded || Self::detect() == self
+    }
+}
+
+/// `x` rounded to the nearest bf16 (ties to even), as its 16 bits.
+#[inline(always)]
+pub fn bf16_bits(x: f32) -> u16 {
+    let b = x.to_bits();
+    if x.is_nan() {
+        return ((b >> 16) | 0x40) as u16;
+    }
+    (b.wrapping_add(0x7fff + ((b >> 16) & 1)) >> 16) as u16
+}
+
+/// `x` rounded to the nearest bf16, as an f32.
+#[inline(always)]
+pub fn round_bf16(x: f32) -> f32 {
+    f32::from_bits((bf16_bits(x) as u32) << 16)
+}
+
+/// `a b` (row-major `a.rows x b.cols`), both operands rounded to bf16, the products summed
+/// in f32. Panics if the views disagree or lie outside their slices, or if this CPU does not
+/// run `kernel`.
+pub(crate) fn matmul(kernel: Bf16Kernel, a: View<'_>, b: View<'_>) -> Vec<f32> {
+    assert_eq!(a.cols, b.rows, "bf16 matmul: inner sizes differ");
+    a.check();
+    b.check();
+    assert!(
+        kernel.runs_here(),
+        "this CPU does not run the {kernel:?} kernel"
+    );
+    match kernel {
+        #[cfg(target_arch = "x86_64")]
+        Bf16Kernel::Avx512Bf16 => avx512::matmul(a, b),
+        #[cfg(not(target_arch = "x86_64"))]
+        Bf16Kernel::Avx512Bf16 => unreachable!("AVX512-BF16 runs on x86_64 only"),
+        Bf16Kernel::Rounded => rounded(a, b),
+    }
+}
+
+/// The rounded operands' f32 product through `gemm`.
+fn rounded(a: View<'_>, b: View<'_>) -> Vec<f32> {
+    let round = |v: View<'_>| -> Vec<f32> {
+        let mut out = vec![0.0; v.rows * v.cols];
+        out.par_chunks_mut(v.cols).enumerate().for_each(|(r, row)| {
+            for (c, x) in row.iter_mut().enumerate() {
+                *x = round_bf16(v.at(r, c));
+            }
+        });
+        out
+    };
+    let (ra, rb) = (round(a), round(b));
+    let (m, k, n) = (a.rows, a.cols, b.cols);
+    let mut c = vec![0.0; m * n];
+    // SAFETY: `ra` is row-major m x k, `rb` row-major k x n, `c` row-major m x n.
+    unsafe {
+        gemm(
+            m,
+            n,
+            k,
+            c.as_mut_ptr(),
+            1,
+            n as isize,
+            false,
+            ra.as_ptr(),
+            1,
+            k as isize,
+            rb.as_ptr(),
+            1,
+            n as isize,
+            0.0,
+            1.0,
+            false,
+            false,
+            false,
+            Parallelism::Rayon(0),
+        );
+    }
+    c
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx512 {
+    //! The `vdpbf16ps` kernel, blocked in the manner of GotoBLAS: `b` is packed in panels of
+    //! `NR` columns per block of `KC` inner values, `a` in strips of `MR` rows per task, and
+    //! each `MR x NR` tile of `c` accumulates in 24 vector registers.
+    use std::arch::x86_64::*;
+
+    use rayon::prelude::*;
+
+    use super::bf16_bits;
+    use crate::matrix::View;
+
+    /// Rows of a register tile.
+    const MR: usize = 12;
+    /// Columns of a register tile: two vectors of 16 f32.
+    const NR: usize = 32;
+    /// Inner-dimension values per packed block (even, so pairs never straddle two blocks).
+    const KC: usize = 384;
+    /// The most rows one task takes (a multiple of `MR`).
+    const MC: usize = MR * 8;
+
+    /// Two bf16 values in one 32-bit word, the first in the low half (`vdpbf16ps`' order).
+    #[inline(always)]
+    fn pair(lo: f32, hi: f32) -> u32 {
+        bf16_bits(lo) as u32 | (bf16_bits(hi) as u32) << 16
+    }
+
+    /// Lanes `0..n` of a 16-lane vector.
+    #[inline(always)]
+    fn lanes(n: usize) -> u16 {
+        if n >= 16 { u16::MAX } else { (1u16 << n) - 1 }
+    }
+
+    /// `out[j] = pair(lo[j], hi[j])` for `j < out.len() <= 32`, `hi` absent reading as zeros:
+    /// two source rows interleaved into the words of their pairs.
+    #[target_feature(enable = "avx512f,avx512bw,avx512bf16")]
+    fn interleave(lo: &[f32], hi: Option<&[f32]>, out: &mut [u32]) {
+        const IDX: [u16; 32] = {
+            let mut idx = [0u16; 32];
+            let mut j = 0;
+            while j < 16 {
+                idx[2 * j] = j as u16;
+                idx[2 * j + 1] = j as u16 + 16;
+                j += 1;
+            }
+            idx
+        };
+        assert!(out.len() <= 32 && lo.len() >= out.len());
+        assert!(hi.is_none_or(|hi| hi.len() >= out.len()));
+        // SAFETY: every load and store is masked to the lanes below `out.len()`, which the
+        // slices were checked to hold.
+        unsafe {
+            let idx = _mm512_loadu_si512(IDX.as_ptr().cast());
+            for h in 0..out.len().div_ceil(16) {
+                let mask = lanes(out.len() - 16 * h);
+                let l = _mm512_maskz_loadu_ps(mask, lo.as_ptr().add(16 * h));
+                let u = match hi {
+                    Some(hi) => _mm512_maskz_loadu_ps(mask, hi.as_ptr().add(16 * h)),
+                    None => _mm512_setzero_ps(),
+                };
+                let halves: __m512i = std::mem::transmute(_mm512_cvtne2ps_pbh(u, l));
+                let words = _mm512_permutexvar_epi16(idx, halves);
+                _mm512_mask_storeu_epi32(out.as_mut_ptr().add(16 * h).cast(), mask, words);
+            }
+        }
+    }
+
+    /// `out[q] = pair(row[2q], row[2q + 1])`: a contiguous run as the words of its pairs (an
+    /// odd length's last word has a zero high half).
+    #[target_feature(enable = "avx512f,avx512bw,avx512bf16")]
+    fn convert(row: &[f32], out: &mut [u32]) {
+        assert_eq!(out.len(), row.len().div_ceil(2));
+        // SAFETY: the loads are masked to `row`'s values, the stores to `out`'s words.
+        unsafe {
+            for (t, words) in out.chunks_mut(16).enumerate() {
+                let n = row.len() - 32 * t;
+                let l = _mm512_maskz_loadu_ps(lanes(n), row.as_ptr().add(32 * t));
+                let u = if n > 16 {
+                    _mm512_maskz_loadu_ps(lanes(n - 16), row.as_ptr().add(32 * t + 16))
+                } else {
+                    _mm512_setzero_ps()
+                };
+                let halves: __m512i = std::mem::transmute(_mm512_cvtne2ps_pbh(u, l));
+                _mm512_mask_storeu_epi32(words.as_mut_ptr().cast(), lanes(words.len()), halves);
+            }
+        }
+    }
+
+    /// How a packed strip of `a` lays out its words.
+    #[derive(Clone, Copy, PartialEq, Eq)]
+    enum Strip {
+        /// Word `(i, q)` at `q * MR + i`: the pairs of one inner step side by side.
+        PairMajor,
+        /// Word `(i, q)` at `i * pairs + q`: each row's pairs in a run.
+        RowMajor,
+    }
+
+    /// `b[k0..k0 + kc, ..]` as panels of `NR` columns: panel `p`, pair `q`, column `j` at
+    /// `(p * pairs + q) * NR + j`, zero beyond the matrix.
+    fn pack_b(b: View<'_>, k0: usize, kc: usize) -> Vec<u32> {
+        let pairs = kc.div_ceil(2);
+        let mut out = vec![0u32; b.cols.div_ceil(NR) * pairs * NR];
+        out.par_chunks_mut(pairs * NR)
+            .enumerate()
+            .for_each_init(Vec::new, |column, (p, panel)| {
+                let (c0, cols) = (p * NR, NR.min(b.cols - p * NR));
+                if b.row_stride == 1 {
+                    // Contiguous columns (a transposed row-major matrix): each column's pairs
+                    // converted in a run, then set into the panel's rows.
+                    column.resize(pairs, 0);
+                    for j in 0..cols {
+                        let run = &b.data[(c0 + j) * b.col_stride + k0..][..kc];
+                        // SAFETY: `matmul`'s caller checked the CPU's features.
+                        unsafe { convert(run, column) };
+                        for (q, &w) in column.iter().enumerate() {
+                            panel[q * NR + j] = w;
+                        }
+                    }
+                    return;
+                }
+                for (q, words) in panel.chunks_mut(NR).enumerate() {
+                    let r0 = k0 + 2 * q;
+                    let r1 = (2 * q + 1 < kc).then_some(r0 + 1);
+                    let words = &mut words[..cols];
+                    if b.col_stride == 1 {
+                        let row = |r: usize| &b.data[r * b.row_stride + c0..][..cols];
+                        // SAFETY: `matmul`'s caller checked the CPU's features.
+                        unsafe { interleave(row(r0), r1.map(row), words) };
+                    } else {
+                        for (j, w) in words.iter_mut().enumerate() {
+                            let hi = r1.map_or(0.0, |r1| b.at(r1, c0 + j));
+                            *w = pair(b.at(r0, c0 + j), hi);
+                        }
+                    }
+                }
+            });
+        out
+    }
+
+    /// `a[r0..r0 + rows, k0..k0 + kc]` as strips of `MR` rows (zero beyond the matrix), each of
+    /// `pairs * MR` words in the layout returned.
+    fn pack_a(
+        a: View<'_>,
+        r0: usize,
+        rows: usize,
+        k0: usize,
+        kc: usize,
+        out: &mut Vec<u32>,
+    ) -> Strip {
+        let pairs = kc.div_ceil(2);
+        out.clear();
+        out.resize(rows.div_ceil(MR) * pairs * MR, 0);
+        if a.col_stride == 1 {
+            for (i, words) in out.chunks_mut(pairs).take(rows).enumerate() {
+                let row = &a.data[(r0 + i) * a.row_stride + k0..][..kc];
+                // SAFETY: `matmul`'s caller checked the CPU's features.
+                unsafe { convert(row, words) };
+            }
+            return Strip::RowMajor;
+        }
+        for (s, strip) in out.chunks_mut(pairs * MR).enumerate() {
+            let (i0, n) = (r0 + s * MR, MR.min(rows - s * MR));
+            for (q, words) in strip.chunks_mut(MR).enumerate() {
+                let (c0, c1) = (
+                    k0 + 2 * q,
+                    (k0 + 2 * q + 1 < k0 + kc).then_some(k0 + 2 * q + 1),
+                );
+                let words = &mut words[..n];
+                if a.row_stride == 1 {
+                    let column = |c: usize| &a.data[c * a.col_stride + i0..][..n];
+                    // SAFETY: `matmul`'s caller checked the CPU's features.
+                    unsafe { interleave(column(c0), c1.map(column), words) };
+                } else {
+                    for (i, w) in words.iter_mut().enumerate() {
+                        *w = pair(a.at(i0 + i, c0), c1.map_or(0.0, |c1| a.at(i0 + i, c1)));
+                    }
+                }
+            }
+        }
+        Strip::PairMajor
+    }
+
+    /// `a b`, the caller having checked the CPU's features and the views.
+    pub(super) fn matmul(a: View<'_>, b: View<'_>) -> Vec<f32> {
+        let (m, k, n) = (a.rows, a.cols, b.cols);
+        let mut c = vec![0.0f32; m * n];
+        let panels = n.div_ceil(NR);
+        // Enough tasks for every thread twice over, in whole strips.
+        let mc = m
+            .div_ceil(2 * rayon::current_num_threads())
+            .next_multiple_of(MR)
+            .min(MC);
+        for k0 in (0..k).step_by(KC) {
+            let kc = KC.min(k - k0);
+            let pairs = kc.div_ceil(2);
+            let bp = pack_b(b, k0, kc);
+            c.par_chunks_mut(mc * n)
+                .enumerate()
+                .for_each_init(Vec::new, |ap, (t, block)| {
+                    let rows = block.len() / n;
+                    let layout = pack_a(a, t * mc, rows, k0, kc, ap);
+                    for p in 0..panels {
+                        let cols = NR.min(n - p * NR);
+                        let panel = &bp[p * pairs * NR..][..pairs * NR];
+                        for s in 0..rows.div_ceil(MR) {
+                            let strip = &ap[s * pairs * MR..][..pairs * MR];
+                            let tile_rows = MR.min(rows - s * MR);
+                            let out = &mut block[s * MR * n + p * NR..];
+                            let tile = Tile {
+                                pairs,
+                                rows: tile_rows,
+                                cols,
+                                ldc: n,
+                                accumulate: k0 > 0,
+                            };
+                            // SAFETY: the caller checked the CPU's features.
+                            unsafe {
+                                match layout {
+                                    Strip::PairMajor => tile.run::<false>(strip, panel, out),
+                                    Strip::RowMajor => tile.run::<true>(strip, panel, out),
+                                }
+                            }
+                        }
+                    }
+                });
+        }
+        c
+    }
+
+    /// One `MR x NR` register tile of `c`.
+    struct Tile {
+        /// Packed pairs of the inner dimension.
+        pairs: usize,
+        /// Rows and columns of the tile inside `c`.
+        rows: usize,
+        cols: usize,
+        /// `c`'s row stride.
+        ldc: usize,
+        /// Add to `c` instead of overwriting it.
+        accumulate: bool,
+    }
+
+    impl Tile {
+        /// `c[..rows, ..cols] [+]= a b` from a strip of `a` (row-major layout when `ROWS`) and a
+        /// panel of `b`.
+        #[target_feature(enable = "avx512f,avx512bf16")]
+        fn run<const ROWS: bool>(&self, a: &[u32], b: &[u32], c: &mut [f32]) {
+            let pairs = self.pairs;
+            assert!(a.len() >= pairs * MR && b.len() >= pairs * NR);
+            assert!(self.rows <= MR && self.cols <= NR && self.rows > 0);
+            assert!(c.len() >= (self.rows - 1) * self.ldc + self.cols);
+            let (row_step, pair_step) = if ROWS { (pairs, 1) } else { (1, MR) };
+            let mut acc = [[_mm512_setzero_ps(); 2]; MR];
+            // SAFETY: word (i, q) of the strip is at i * row_step + q * pair_step <
+            // pairs * MR, and word (q, j) of the panel at q * NR + j < pairs * NR.
+            unsafe {
+                let (mut ap, mut bp) = (a.as_ptr(), b.as_ptr());
+                for _ in 0..pairs {
+                    let b0: __m512bh = std::mem::transmute(_mm512_loadu_si512(bp.cast()));
+                    let b1: __m512bh = std::mem::transmute(_mm512_loadu_si512(bp.add(16).cast()));
+                    for (i, acc) in acc.iter_mut().enumerate() {
+                        let ai = _mm512_set1_epi32(*ap.add(i * row_step) as i32);
+                        let ai: __m512bh = std::mem::transmute(ai);
+                        acc[0] = _mm512_dpbf16_ps(acc[0], ai, b0);
+                        acc[1] = _mm512_dpbf16_ps(acc[1], ai, b1);
+                    }
+                    ap = ap.add(pair_step);
+                    bp = bp.add(NR);
+                }
+            }
+            let masks = [lanes(self.cols), lanes(self.cols.saturating_sub(16))];
+            for (i, acc) in acc.iter().enumerate().take(self.rows) {
+                for (h, (&v, &mask)) in acc.iter().zip(&masks).enumerate() {
+                    // SAFETY: the masked lanes lie below (rows - 1) * ldc + cols.
+                    unsafe {
+                        let dst = c.as_mut_ptr().add(i * self.ldc + 16 * h);
+                        let v = if self.accumulate {
+                            _mm512_add_ps(v, _mm512_maskz_loadu_ps(mask, dst))
+                        } else {
+                            v
+                        };
+                        _mm512_mask_storeu_ps(dst, mask, v);
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Uniform values in [-1, 1) from a fixed linear congruential sequence.
+    fn values(n: usize, seed: u64) -> Vec<f32> {
+        let mut s = seed;
+        (0..n)
+            .map(|_| {
+                s = s
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                (s >> 40) as f32 / (1u64 << 23) as f32 - 1.0
+            })
+            .collect()
+    }
+
+    /// The product of the rounded operands in f64.
+    fn reference(a: View<'_>, b: View<'_>) -> Vec<f64> {
+        let mut c = vec![0.0; a.rows * b.cols];
+        for i in 0..a.rows {
+            for j in 0..b.cols {
+                c[i * b.cols + j] = (0..a.cols)
+                    .map(|p| round_bf16(a.at(i, p)) as f64 * round_bf16(b.at(p, j)) as f64)
+                    .sum();
+            }
+        }
+        c
+    }
+
+    /// Every kernel this CPU runs, on sizes that leave partial tiles, strips and panels, more
+    /// than one block of the inner dimension (odd and even) and of rows, and each operand
+    /// row-major or transposed: within f32's rounding of the sums of the rounded operands'
+    /// exact products.
+    #[test]
+    fn kernels_match_the_rounded_product() {
+        let kernels: Vec<Bf16Kernel> = [Bf16Kernel::Avx512Bf16, Bf16Kernel::Rounded]
+            .into_iter()
+            .filter(|k| k.runs_here())
+            .collect();
+        eprintln!("kernels run here: {kernels:?}");
+        for (m, k, n) in [
+            (1, 1, 1),
+            (13, 7, 33),
+            (12, 2, 32),
+            (130, 801, 70),
+            (200, 384, 31),
+        ] {
+            let (ad, bd) = (values(m * k, 1), values(k * n, 2));
+            for (a_t, b_t) in [(false, false), (true, false), (false, true), (true, true)] {
+                let a = if a_t {
+                    View::transposed(&ad, m, k)
+                } else {
+                    View::rows(&ad, m, k)
+                };
+                let b = if b_t {
+                    View::transposed(&bd, k, n)
+                } else {
+                    View::rows(&bd, k, n)
+                };
+                let want = reference(a, b);
+                for &kernel in &kernels {
+                    let got = matmul(kernel, a, b);
+                    let err = got
+                        .iter()
+                        .zip(&want)
+                        .map(|(x, y)| (*x as f64 - y).abs())
+                        .fold(0.0, f64::max);
+                    let bound = 1e-6 * (k as f64).sqrt().max(1.0) * 4.0;
+                    assert!(
+                        err < bound,
+                        "{kernel:?} {m}x{k}x{n} (a transposed {a_t}, b {b_t}): error {err}"
+                    );
+                }
+            }
+        }
+    }
+
+    /// Rounding to nearest with ties to even, infinities kept, NaN kept a NaN.
+    #[test]
+    fn rounding_is_to_nearest_even() {
+        assert_eq!(round_bf16(1.0), 1.0);
+        // 1 + 2^-8 lies halfway between 1 and 1 + 2^-7: the tie goes to the even 1.
+        assert_eq!(round_bf16(1.0 + 2f32.powi(-8)), 1.0);
+        // 1 + 3 * 2^-8 lies halfway between 1 + 2^-7 and 1 + 2^-6: to the even 1 + 2^-6.
+        assert_eq!(round_bf16(1.0 + 3.0 * 2f32.powi(-8)), 1.0 + 2f32.powi(-6));
+        assert_eq!(
+            round_bf16(1.0 + 2f32.powi(-8) + 2f32.powi(-12)),
+            1.0 + 2f32.powi(-7)
+        );
+        assert_eq!(round_bf16(-3.0), -3.0);
+        assert_eq!(round_bf16(f32::INFINITY), f32::INFINITY);
+        assert!(round_bf16(f32::NAN).is_nan());
+        let x = 0.1f32;
+        assert!((round_bf16(x) - x).abs() <= x * 2f32.powi(-9));
+    }
+}
