@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::Args;
 use prism_core::BackendKind;
+use prism_model::Precision;
 use prism_train::{Framing, InferOptions, Sweep, infer};
 
 /// Synthesise novel views of a person from one photo.
@@ -43,6 +44,10 @@ pub struct InferArgs {
     /// Backend: ndarray, flex or wgpu.
     #[arg(long, default_value = "flex")]
     backend: BackendKind,
+    /// The precision of the transformer blocks: f32, f16 or bf16 (the rest of the model stays
+    /// f32; bf16 on the CPU: bf16 matrix products, see the README).
+    #[arg(long, default_value = "f32", value_name = "f32|f16|bf16")]
+    precision: Precision,
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
@@ -59,6 +64,7 @@ impl InferArgs {
             step_deg: self.step,
             batch: self.batch.max(1),
             progress: !self.quiet,
+            precision: self.precision,
             ..InferOptions::default()
         };
         let results = infer(

@@ -21,6 +21,7 @@ use base64::Engine as _;
 use clap::Args;
 use image::{ImageEncoder as _, RgbImage};
 use prism_core::BackendKind;
+use prism_model::Precision;
 use prism_train::viewer::{Frame, Viewer};
 use serde::Deserialize;
 use serde_json::json;
@@ -55,6 +56,10 @@ pub struct ViewArgs {
     /// Backend: ndarray, flex or wgpu.
     #[arg(long, default_value = "flex")]
     backend: BackendKind,
+    /// The precision of the transformer blocks: f32, f16 or bf16 (the rest of the model stays
+    /// f32; bf16 on the CPU: bf16 matrix products, see the README).
+    #[arg(long, default_value = "f32", value_name = "f32|f16|bf16")]
+    precision: Precision,
 }
 
 impl ViewArgs {
@@ -67,8 +72,13 @@ impl ViewArgs {
             Some(d) => Some(d),
             None => cached_dataset(&self.checkpoint[0]),
         };
-        let viewer = Viewer::open(&self.checkpoint, data.as_deref(), self.backend)
-            .context("loading the viewer's models")?;
+        let viewer = Viewer::open(
+            &self.checkpoint,
+            data.as_deref(),
+            self.backend,
+            self.precision,
+        )
+        .context("loading the viewer's models")?;
         let runtime = tokio::runtime::Builder::new_multi_thread()
             .enable_all()
             .build()

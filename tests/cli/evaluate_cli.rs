@@ -481,6 +481,24 @@ fn infer_writes_the_sweep_a_gif_and_the_gaussians() {
         .sum::<f64>()
         / (32.0 * 32.0 * 3.0);
     assert!(diff < 12.0, "mean difference {diff}");
+    // A precision the backend does not compute in is refused before anything is written.
+    let refused = dir.join("refused");
+    let err = failure(prism(&[
+        "infer",
+        "--checkpoint",
+        s(run_dir),
+        "--image",
+        s(&subject.join("rgb/000.png")),
+        "--out",
+        s(&refused),
+        "--precision",
+        "bf16",
+    ]));
+    assert!(
+        err.contains("ndarray backend cannot compute in bf16"),
+        "{err}"
+    );
+    assert!(!refused.exists());
     // A standard 3DGS PLY: one Gaussian per source pixel.
     let bytes = std::fs::read(&ply).unwrap();
     let header = String::from_utf8_lossy(&bytes[..bytes.len().min(600)]).to_string();

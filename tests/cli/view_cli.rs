@@ -230,6 +230,23 @@ fn the_viewer_answers_the_browser_like_infer_and_stops_on_sigint() {
     let dir = scratch("view");
     let cache = dir.join("cache");
     let (run, data) = tiny_teacher(&cache, &dir);
+    // A precision the backend does not compute in is refused before the server starts.
+    let err = common::failure(prism_with_cache(
+        &cache,
+        &[
+            "view",
+            "--checkpoint",
+            s(&run),
+            "--backend",
+            "ndarray",
+            "--precision",
+            "bf16",
+        ],
+    ));
+    assert!(
+        err.contains("ndarray backend cannot compute in bf16"),
+        "{err}"
+    );
     let mut viewer = start_view(&cache, &run, &data);
     sockets::assert_loopback_only(viewer.child.id(), viewer.port(), "prism view");
 

@@ -28,6 +28,7 @@ use burn::optim::lr_scheduler::LrSchedulerRecord;
 use burn::optim::lr_scheduler::module_lr_scheduler::ModuleLrScheduler;
 use burn::optim::{ModuleOptimizer, OptimizerRecord};
 use burn::tensor::Device;
+use prism_core::BackendKind;
 use prism_core::files::{ASIDE_SUFFIX, STAGED_SUFFIX, recover_dir, replace_dir, with_suffix};
 use prism_model::{AttentionKind, Precision, Prism, PrismConfig};
 use serde::{Deserialize, Serialize};
@@ -223,6 +224,28 @@ pub fn load_model(path: &Path, device: &Device) -> Result<(Prism, TrainingConfig
     let checkpoint = Checkpoint::read(path)?;
     let model = checkpoint.load_model(device)?;
     Ok((model, checkpoint.config))
+}
+
+/// [`load_model`] for inference on `backend`'s `device`, with the transformer blocks in
+/// `precision` ([`Prism::with_block_precision`]): what evaluation, inference and the viewer
+/// load.
+///
+/// # Errors
+/// As [`load_model`], and a precision the device does not compute in.
+pub fn load_inference_model(
+    path: &Path,
+    backend: BackendKind,
+    device: &Device,
+    precision: Precision,
+) -> Result<(Prism, TrainingConfig)> {
+    if !precision.supported_on(device) {
+        return Err(TrainError::UnsupportedPrecision {
+            precision,
+            backend: backend.to_string(),
+        });
+    }
+    let (model, config) = load_model(path, device)?;
+    Ok((model.with_block_precision(precision), config))
 }
 
 /// A model built from `config` with the weights of a burnpack file.

@@ -37,7 +37,7 @@ use prism_losses::{
 use prism_model::{Precision, Prism};
 use serde::Serialize;
 
-use crate::checkpoint::{CHECKPOINTS_DIR, load_model};
+use crate::checkpoint::{CHECKPOINTS_DIR, load_inference_model};
 use crate::error::{Result, TrainError};
 use crate::images::{error_map, save_png, tile};
 use crate::log::METRICS_FILE;
@@ -231,14 +231,7 @@ pub fn evaluate_checkpoint(
 ) -> Result<(Evaluation, EvaluationFiles)> {
     let device = backend.device()?;
     let precision = options.precision;
-    if !precision.supported_on(&device) {
-        return Err(TrainError::UnsupportedPrecision {
-            precision,
-            backend: backend.to_string(),
-        });
-    }
-    let (model, config) = load_model(checkpoint, &device)?;
-    let model = model.with_block_precision(precision);
+    let (model, config) = load_inference_model(checkpoint, backend, &device, precision)?;
     let data_dir = data.to_path_buf();
     let reader = DatasetReader::open(&data_dir)?;
     let lpips = Lpips::load_default(lpips_weights, &device)?;

@@ -12,9 +12,9 @@ use burn::tensor::Device;
 use image::{DynamicImage, GrayImage, Rgb, Rgb32FImage, RgbImage, Rgba32FImage};
 use indicatif::ProgressBar;
 use prism_core::{BackendKind, Camera, Intrinsics, ViewAngles, ViewingProtocol};
-use prism_model::Prism;
+use prism_model::{Precision, Prism};
 
-use crate::checkpoint::load_model;
+use crate::checkpoint::load_inference_model;
 use crate::error::{Result, TrainError};
 use crate::images::{save_gif, save_png};
 use crate::predict::{Pairs, forward_pairs, inference_model, synthesise};
@@ -332,6 +332,8 @@ pub struct InferOptions {
     pub gif_delay_ms: u32,
     /// Draw a progress bar on stderr.
     pub progress: bool,
+    /// The precision of the transformer blocks ([`Prism::with_block_precision`]).
+    pub precision: Precision,
 }
 
 impl Default for InferOptions {
@@ -342,6 +344,7 @@ impl Default for InferOptions {
             batch: 8,
             gif_delay_ms: 120,
             progress: false,
+            precision: Precision::F32,
         }
     }
 }
@@ -394,7 +397,7 @@ pub fn infer(
         vec![input.to_path_buf()]
     };
     let device = backend.device()?;
-    let (model, config) = load_model(checkpoint, &device)?;
+    let (model, config) = load_inference_model(checkpoint, backend, &device, options.precision)?;
     if export_ply.is_some() && model.gs_head.is_none() {
         return Err(TrainError::checkpoint(
             checkpoint,

@@ -68,8 +68,8 @@ pub use budget::{BudgetPoint, budget_curve, budget_markdown};
 pub use cadence::{Cadence, SAMPLES_DIR};
 pub use checkpoint::{
     CHECKPOINTS_DIR, Checkpoint, CheckpointContents, CheckpointState, checkpoint_dir,
-    latest_checkpoint, list_checkpoints, load_model, save_checkpoint, save_model_checkpoint,
-    write_checkpoint_files,
+    latest_checkpoint, list_checkpoints, load_inference_model, load_model, save_checkpoint,
+    save_model_checkpoint, write_checkpoint_files,
 };
 pub use clip::{clip_global_norm, global_norm, parameter_values};
 pub use config::{TrainConfig, TrainingConfig, config_name, configs_dir};

@@ -16,9 +16,9 @@ use prism_core::protocol::{SOURCE_VIEW, ViewAngles, ViewingProtocol};
 use prism_data::batch::rgb_chw;
 use prism_data::{CameraRecord, DatasetReader, SplitKind};
 use prism_losses::psnr;
-use prism_model::Prism;
+use prism_model::{Precision, Prism};
 
-use crate::checkpoint::load_model;
+use crate::checkpoint::load_inference_model;
 use crate::error::{Result, TrainError};
 use crate::infer::{Framing, frame_photo, frontal_camera};
 use crate::predict::{Pairs, forward_pairs};
@@ -92,23 +92,24 @@ pub struct Viewer {
 }
 
 impl Viewer {
-    /// Loads `checkpoints` (checkpoint or run folders, all of one resolution) on `backend`, with
-    /// the held-out people of the dataset at `data` (when given) as inputs; the first person,
-    /// if any, is the first input.
+    /// Loads `checkpoints` (checkpoint or run folders, all of one resolution) on `backend`, their
+    /// transformer blocks in `precision`, with the held-out people of the dataset at `data`
+    /// (when given) as inputs; the first person, if any, is the first input.
     ///
     /// # Errors
     /// Unreadable checkpoints, checkpoints of different resolutions or backgrounds, a dataset
-    /// that cannot be opened.
+    /// that cannot be opened, a precision the backend does not compute in.
     pub fn open(
         checkpoints: &[PathBuf],
         data: Option<&Path>,
         backend: BackendKind,
+        precision: Precision,
     ) -> Result<Self> {
         let device = backend.device()?;
         let mut models = Vec::new();
         let mut shape: Option<(u32, [f32; 3])> = None;
         for path in checkpoints {
-            let (model, config) = load_model(path, &device)?;
+            let (model, config) = load_inference_model(path, backend, &device, precision)?;
             let this = (config.model.resolution as u32, config.data.background);
             if let Some(first) = shape
                 && first != this
