@@ -11,7 +11,8 @@ use prism_render::splat::{GaussianCloud, SH_C0, background, render};
 
 /// The sizes `prism evaluate` renders the warp at, in footprints of one source pixel at its
 /// distance (isotropic Gaussians): from a tenth of a pixel (sharp, with gaps where the surface
-/// stretches) to half a pixel (no gaps, softer); 0.3 is the shipped configs' `gs_scale`.
+/// stretches) to half a pixel (no gaps, softer); 0.3 and 0.5 are the tiny and small configs'
+/// `gs_scale`.
 pub const WARP_FOOTPRINTS: [f32; 4] = [0.1, 0.2, 0.3, 0.5];
 
 /// Opacity of a foreground pixel's Gaussian (the largest the keying of `gs_keying` gives).
