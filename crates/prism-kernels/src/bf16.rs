@@ -257,23 +257,37 @@ mod avx512 {
                     }
                     return;
                 }
-                for (q, words) in panel.chunks_mut(NR).enumerate() {
-                    let r0 = k0 + 2 * q;
-                    let r1 = (2 * q + 1 < kc).then_some(r0 + 1);
-                    let words = &mut words[..cols];
-                    if b.col_stride == 1 {
-                        let row = |r: usize| &b.data[r * b.row_stride + c0..][..cols];
-                        // SAFETY: `matmul`'s caller checked the CPU's features.
-                        unsafe { interleave(row(r0), r1.map(row), words) };
-                    } else {
-                        for (j, w) in words.iter_mut().enumerate() {
-                            let hi = r1.map_or(0.0, |r1| b.at(r1, c0 + j));
-                            *w = pair(b.at(r0, c0 + j), hi);
-                        }
-                    }
-                }
+                pair_rows(b, k0, kc, c0, cols, panel, NR);
             });
         out
+    }
+
+    /// Word `(q, j)` at `q * stride + j` of `out`, for `j < width`: rows `k0 + 2q` and
+    /// `k0 + 2q + 1` of `m` (the second zero past `k0 + kc`) at column `c0 + j`, as a pair.
+    fn pair_rows(
+        m: View<'_>,
+        k0: usize,
+        kc: usize,
+        c0: usize,
+        width: usize,
+        out: &mut [u32],
+        stride: usize,
+    ) {
+        for (q, words) in out.chunks_mut(stride).enumerate() {
+            let r0 = k0 + 2 * q;
+            let r1 = (2 * q + 1 < kc).then_some(r0 + 1);
+            let words = &mut words[..width];
+            if m.col_stride == 1 {
+                let row = |r: usize| &m.data[r * m.row_stride + c0..][..width];
+                // SAFETY: `matmul`'s caller checked the CPU's features.
+                unsafe { interleave(row(r0), r1.map(row), words) };
+            } else {
+                for (j, w) in words.iter_mut().enumerate() {
+                    let hi = r1.map_or(0.0, |r1| m.at(r1, c0 + j));
+                    *w = pair(m.at(r0, c0 + j), hi);
+                }
+            }
+        }
     }
 
     /// `a[r0..r0 + rows, k0..k0 + kc]` as strips of `MR` rows (zero beyond the matrix), each of
@@ -299,22 +313,7 @@ mod avx512 {
         }
         for (s, strip) in out.chunks_mut(pairs * MR).enumerate() {
             let (i0, n) = (r0 + s * MR, MR.min(rows - s * MR));
-            for (q, words) in strip.chunks_mut(MR).enumerate() {
-                let (c0, c1) = (
-                    k0 + 2 * q,
-                    (k0 + 2 * q + 1 < k0 + kc).then_some(k0 + 2 * q + 1),
-                );
-                let words = &mut words[..n];
-                if a.row_stride == 1 {
-                    let column = |c: usize| &a.data[c * a.col_stride + i0..][..n];
-                    // SAFETY: `matmul`'s caller checked the CPU's features.
-                    unsafe { interleave(column(c0), c1.map(column), words) };
-                } else {
-                    for (i, w) in words.iter_mut().enumerate() {
-                        *w = pair(a.at(i0 + i, c0), c1.map_or(0.0, |c1| a.at(i0 + i, c1)));
-                    }
-                }
-            }
+            pair_rows(a.t(), k0, kc, i0, n, strip, MR);
         }
         Strip::PairMajor
     }

@@ -33,6 +33,17 @@ impl<'a> View<'a> {
         }
     }
 
+    /// The transposed view of the same values.
+    pub(crate) fn t(self) -> Self {
+        Self {
+            data: self.data,
+            rows: self.cols,
+            cols: self.rows,
+            row_stride: self.col_stride,
+            col_stride: self.row_stride,
+        }
+    }
+
     /// Panics unless the view is non-empty and lies inside its slice.
     pub(crate) fn check(&self) {
         let last = (self.rows - 1) * self.row_stride + (self.cols - 1) * self.col_stride;
