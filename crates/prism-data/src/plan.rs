@@ -12,7 +12,7 @@ use prism_core::protocol::NUM_VIEWS;
 pub const MIN_RESOLUTION: u32 = 8;
 
 /// Checks the settings every protocol dataset has: the resolution (at least
-/// [`MIN_RESOLUTION`]), the test fraction (in `[0, 1)`) and the background (components in
+/// [`MIN_RESOLUTION`]), the test fraction (in `[0, 1]`) and the background (components in
 /// `[0, 1]`); errors name `out`.
 pub fn check_settings(
     out: &Path,
@@ -26,10 +26,10 @@ pub fn check_settings(
             format!("the resolution must be at least {MIN_RESOLUTION} px, got {resolution}"),
         ));
     }
-    if !(0.0..1.0).contains(&test_fraction) {
+    if !(0.0..=1.0).contains(&test_fraction) {
         return Err(DataError::invalid(
             out,
-            format!("the test fraction must be in [0, 1), got {test_fraction}"),
+            format!("the test fraction must be in [0, 1], got {test_fraction}"),
         ));
     }
     if background.iter().any(|c| !(0.0..=1.0).contains(c)) {
@@ -42,11 +42,14 @@ pub fn check_settings(
 }
 
 /// The train / test split of `names` (in their order): the last `round(n * test_fraction)` are
-/// held out, at least one and at most `n - 1` when the fraction is positive (none with a
-/// single subject).
+/// held out, at least one and at most `n - 1` when the fraction is positive and below 1 (none
+/// with a single subject). A fraction of 1 holds out every subject: a test-only dataset, such
+/// as scans from another domain to evaluate a trained model on.
 pub fn split_last(names: &[String], test_fraction: f32) -> Split {
     let n = names.len();
-    let test = if test_fraction > 0.0 && n >= 2 {
+    let test = if test_fraction >= 1.0 {
+        n
+    } else if test_fraction > 0.0 && n >= 2 {
         ((n as f32 * test_fraction).round() as usize).clamp(1, n - 1)
     } else {
         0
@@ -118,6 +121,12 @@ mod tests {
         );
         assert_eq!(split_last(&names(4), 0.9).train.len(), 1, "one trains");
         assert!(split_last(&names(5), 0.0).test.is_empty());
+        assert_eq!(
+            split_last(&names(1), 1.0).test,
+            vec!["s0"],
+            "1 holds out all"
+        );
+        assert!(split_last(&names(3), 1.0).train.is_empty());
         assert_eq!(split_last(&[], 0.5), Split::default());
     }
 
@@ -135,9 +144,11 @@ mod tests {
     fn settings_are_checked_and_named() {
         let out = Path::new("ds");
         assert!(check_settings(out, 32, 0.1, [1.0; 3]).is_ok());
+        assert!(check_settings(out, 32, 1.0, [1.0; 3]).is_ok(), "test-only");
         for (res, f, bg) in [
             (4, 0.1, [1.0; 3]),
-            (32, 1.0, [1.0; 3]),
+            (32, 1.5, [1.0; 3]),
+            (32, -0.1, [1.0; 3]),
             (32, 0.1, [2.0, 0.0, 0.0]),
         ] {
             let e = check_settings(out, res, f, bg).unwrap_err().to_string();

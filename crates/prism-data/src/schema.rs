@@ -43,8 +43,9 @@ pub struct Split {
     pub test: Vec<String>,
 }
 
-/// Which part of a dataset to read.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// Which part of a dataset to read (`train` or `test` in JSON).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
 pub enum SplitKind {
     /// The training subjects.
     Train,

@@ -14,7 +14,8 @@
 //! Every method also gets a speckle score ([`prism_losses::speckle`]): its mean absolute
 //! Laplacian over the truth's where the truth is smooth, on the target's foreground. The
 //! true-depth warp's footprint is chosen on training subjects ([`pick_warp_footprint`]), never
-//! on the views it is scored on. With [`EvaluateOptions::oracle`], the 3DGS head's Gaussians are
+//! on the views it is scored on, except in a test-only dataset (scans from another domain),
+//! where it is chosen on the test subjects and the report says so. With [`EvaluateOptions::oracle`], the 3DGS head's Gaussians are
 //! also drawn with one property at a time taken from the truth ([`crate::oracle`]).
 
 use std::collections::BTreeMap;
@@ -129,9 +130,12 @@ pub struct Evaluation {
     pub true_depth_warp: MethodScores,
     /// The footprint (source pixels) of the reported true-depth warp.
     pub true_depth_warp_footprint: f32,
-    /// Every footprint the warp was rendered at on the training subjects that chose it
+    /// Every footprint the warp was rendered at on the subjects that chose it
     /// ([`pick_warp_footprint`]), with its mean PSNR (dB) there.
     pub true_depth_warp_sweep: Vec<FootprintPsnr>,
+    /// The split those subjects came from: `train`, or `test` in a dataset without training
+    /// subjects (the baseline then tuned on the views it is scored on, so at its best).
+    pub true_depth_warp_chosen_on: SplitKind,
     /// The speckle score of each method ([`prism_losses::speckle`]).
     pub speckle: SpeckleScores,
     /// The oracle swaps' scores, when asked for ([`EvaluateOptions::oracle`]).
@@ -302,7 +306,8 @@ pub fn evaluate(
     .with_depth();
     let mut disoccluded_by = RegionMethod::DepthTest;
     let background = reader.meta().background;
-    let true_depth_warp_sweep = pick_warp_footprint(reader, resolution, device)?;
+    let (true_depth_warp_sweep, true_depth_warp_chosen_on) =
+        pick_warp_footprint(reader, resolution, device)?;
     let footprint = best_footprint(&true_depth_warp_sweep);
     let views = validation_views(options.views);
     let grid_views: Vec<usize> = validation_views(options.grid_views.min(views.len()))
@@ -461,6 +466,7 @@ pub fn evaluate(
             true_depth_warp: warp.scores.finish(),
             true_depth_warp_footprint: footprint,
             true_depth_warp_sweep,
+            true_depth_warp_chosen_on,
             speckle,
             oracle,
             depth_error: DepthError::of(&depth_errors),
@@ -477,18 +483,25 @@ pub const WARP_SELECTION_VIEWS: usize = 10;
 
 /// The true-depth warp's mean PSNR at each of [`WARP_FOOTPRINTS`] on the first
 /// [`WARP_SELECTION_SUBJECTS`] training subjects ([`WARP_SELECTION_VIEWS`] evaluation views
-/// each): the warp is a baseline tuned like a model, on data it is not scored on.
+/// each): the warp is a baseline tuned like a model, on data it is not scored on. A dataset
+/// with no training subjects (a test-only one) has it chosen on its test subjects instead;
+/// the split used is returned with the sweep.
 ///
 /// # Errors
-/// A dataset without training subjects, or unreadable files.
+/// A dataset without subjects, or unreadable files.
 pub fn pick_warp_footprint(
     reader: &DatasetReader,
     resolution: u32,
     device: &Device,
-) -> Result<Vec<FootprintPsnr>> {
+) -> Result<(Vec<FootprintPsnr>, SplitKind)> {
+    let split = if reader.meta().subjects_of(SplitKind::Train).is_empty() {
+        SplitKind::Test
+    } else {
+        SplitKind::Train
+    };
     let dataset = SampleDataset::new(
         reader.clone(),
-        SplitKind::Train,
+        split,
         TargetSelection::Evaluation { per_sample: 1 },
         Some((resolution, resolution)),
         0,
@@ -504,7 +517,7 @@ pub fn pick_warp_footprint(
         .map(|i| dataset.load(i))
         .collect::<std::result::Result<Vec<Sample>, _>>()?;
     let gt = PrismBatcher.batch_samples(&samples, device).target_image;
-    Ok(WARP_FOOTPRINTS
+    let sweep = WARP_FOOTPRINTS
         .iter()
         .map(|&footprint| {
             let warp = true_depth_warp(&samples, background, footprint, device);
@@ -514,7 +527,8 @@ pub fn pick_warp_footprint(
                 psnr: values.iter().sum::<f64>() / values.len() as f64,
             }
         })
-        .collect())
+        .collect();
+    Ok((sweep, split))
 }
 
 /// The footprint of the sweep's best mean PSNR.

@@ -5,7 +5,7 @@ use std::fmt::Write as _;
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use prism_data::RegionMethod;
+use prism_data::{RegionMethod, SplitKind};
 use prism_losses::{NO_VALUE, ScoreTable, score_cells};
 
 use crate::error::{Result, TrainError};
@@ -316,8 +316,15 @@ pub fn markdown_report(
         "The source warped at the true depth, a baseline, is its foreground pixels as Gaussians \
          at the dataset's own 3D points, rendered into each target view: what a geometric \
          output shows with the dataset's depth and the source's colours. Its Gaussians' size \
-         matters, so it was rendered at several footprints on training subjects ({}) and the \
-         best there, {} source pixels, is the one scored here. Model minus it: PSNR {:+.3} dB.\n",
+         matters, so it was rendered at several footprints on {} ({}) and the best there, {} \
+         source pixels, is the one scored here. Model minus it: PSNR {:+.3} dB.\n",
+        match e.true_depth_warp_chosen_on {
+            SplitKind::Train => "training subjects",
+            SplitKind::Test => {
+                "the test subjects themselves (this dataset has no training subjects, so the \
+                 baseline is at its best on these views)"
+            }
+        },
         sweep.join(", "),
         e.true_depth_warp_footprint,
         e.psnr - e.true_depth_warp.psnr

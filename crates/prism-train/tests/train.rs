@@ -9,14 +9,14 @@ use std::sync::Arc;
 
 use prism_core::BackendKind;
 use prism_core::files::{Disk, ReplaceFs};
-use prism_data::PrismBatch;
 use prism_data::SynthOptions;
+use prism_data::{DatasetReader, PrismBatch, SplitKind};
 use prism_losses::LossTerms;
 use prism_model::Prism;
 use prism_synth::synth::synth_dataset;
 use prism_train::{
     Checkpoint, RunOptions, StepLoss, Task, TeacherTask, TrainError, TrainingConfig,
-    list_checkpoints, read_metrics, train,
+    evaluate::pick_warp_footprint, list_checkpoints, read_metrics, train, warp::WARP_FOOTPRINTS,
 };
 
 /// One dataset for every test of this file: 5 subjects (one held out) at 32 px.
@@ -550,6 +550,35 @@ fn geometry_losses_fall_on_synthetic_people() {
         assert!(
             first > 0.0 && last < 0.8 * first,
             "{name}: {first} -> {last}"
+        );
+    }
+}
+
+/// A test-only dataset (`--test-fraction 1`, as for scans from another domain) has no training
+/// subjects to choose the true-depth warp's footprint on: it is chosen on the test subjects,
+/// and the evaluation says so; a dataset with training subjects keeps choosing on them.
+#[test]
+fn warp_footprint_is_chosen_on_the_test_subjects_of_a_test_only_dataset() {
+    let device = BackendKind::Ndarray.device().unwrap();
+    for (subjects, test_fraction, chosen_on) in
+        [(1, 1.0, SplitKind::Test), (2, 0.5, SplitKind::Train)]
+    {
+        let data = tempfile::tempdir().unwrap();
+        let options = SynthOptions {
+            subjects,
+            resolution: 24,
+            test_fraction,
+            supersample: 1,
+            ..SynthOptions::default()
+        };
+        synth_dataset(data.path(), &options, &|| {}, &|_, _| {}).unwrap();
+        let reader = DatasetReader::open(data.path()).unwrap();
+        let (sweep, split) = pick_warp_footprint(&reader, 24, &device).unwrap();
+        assert_eq!(split, chosen_on);
+        assert_eq!(sweep.len(), WARP_FOOTPRINTS.len());
+        assert!(
+            sweep.iter().all(|f| f.psnr.is_finite() && f.psnr > 10.0),
+            "{sweep:?}"
         );
     }
 }
