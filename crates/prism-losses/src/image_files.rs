@@ -9,7 +9,10 @@ use burn::tensor::{Device, Tensor, TensorData};
 use prism_core::axes::permute;
 use serde::Serialize;
 
-use crate::{ImageScores, LPIPS_MIN_SIDE, LossError, Lpips, SSIM_WINDOW, ScoreTable, score_images};
+use crate::{
+    GroundTruth, ImageScores, LPIPS_MIN_SIDE, LossError, Lpips, SSIM_WINDOW, ScoreTable,
+    score_images,
+};
 
 /// File extensions scored in folders (case-insensitive).
 pub const IMAGE_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
@@ -121,7 +124,7 @@ pub fn score_files(
             min,
         });
     }
-    Ok(score_images(p, g, Some(lpips))[0])
+    Ok(score_images(p, &GroundTruth::new(g, Some(lpips)))[0])
 }
 
 /// Scores `pred` against `gt`: two image files, or two folders whose images (png, jpg, jpeg;

@@ -34,7 +34,7 @@ pub use centres::{centres_loss, spread_loss};
 pub use distill::{DistillInputs, distill_layers, distill_loss};
 pub use error::LossError;
 pub use image_files::{FolderScores, Scores, load_image, score_files, score_paths};
-pub use lpips::{LPIPS_MIN_SIDE, Lpips};
+pub use lpips::{LPIPS_MIN_SIDE, Lpips, LpipsReference};
 pub use objective::{
     CentreInputs, ImagePair, LossInputs, LossTerms, LossWeights, Objective, OpacityInputs,
     PointInputs, SmplxInputs, holes_loss, mse_loss,
@@ -43,7 +43,7 @@ pub use opacity::{opacity_loss, pixel_rows};
 pub use point::{POINT_LOSS_SCALES, PointLoss, point_loss};
 pub use psnr::psnr;
 pub use region::{psnr_region_filled, score_region};
-pub use scores::{ImageScores, score_images};
+pub use scores::{GroundTruth, ImageScores, score_images};
 pub use smplx::{SmplxParams, smplx_loss};
 pub use speckle::{SMOOTH_LAPLACIAN, SpeckleSums, laplacian_magnitude, speckle_sums};
 pub use ssim::{SSIM_WINDOW, ssim, ssim_map};

@@ -144,67 +144,48 @@ impl Lpips {
     }
 
     /// Per-image LPIPS distance between `pred` and `gt`, both `[B, 3, H, W]` in [0, 1]
-    /// (H, W >= 31); returns `[B]`. Differentiable with respect to both inputs; the two
-    /// images go through the network as one batch of `2B`.
+    /// (H, W >= 31); returns `[B]`. Differentiable with respect to `pred`: the ground truth's
+    /// pass is not tracked (a target and frozen weights), so the backward pass only runs
+    /// through the prediction's half. The same as [`Lpips::reference`] of `gt`, then
+    /// [`LpipsReference::forward`].
     ///
     /// # Panics
     /// When the shapes differ, there are not 3 channels, or a side is below 31.
     pub fn forward(&self, pred: Tensor<4>, gt: Tensor<4>) -> Tensor<1> {
-        let [batch, channels, height, width] = pred.dims();
-        assert_eq!(
-            pred.dims(),
-            gt.dims(),
-            "LPIPS: prediction and target shapes differ"
-        );
+        self.features_of(gt).forward(pred)
+    }
+
+    /// The unit-normalised AlexNet features of a batch of ground-truth images `gt`
+    /// (`[B, 3, H, W]` in [0, 1], H, W >= 31), computed once for any number of predictions of
+    /// the same images: `prism evaluate` scores several methods, and each one's disoccluded
+    /// region, against one ground truth. Its wall time counts as [`Phase::Lpips`].
+    ///
+    /// # Panics
+    /// When there are not 3 channels or a side is below 31.
+    pub fn reference(&self, gt: Tensor<4>) -> LpipsReference<'_> {
+        timed(Phase::Lpips, || self.features_of(gt))
+    }
+
+    /// [`Lpips::reference`] without the timing (the training loss's path).
+    fn features_of(&self, gt: Tensor<4>) -> LpipsReference<'_> {
+        let dims = gt.dims();
+        let [_, channels, height, width] = dims;
         assert_eq!(channels, 3, "LPIPS: images must have 3 channels");
         assert!(
             height >= LPIPS_MIN_SIDE && width >= LPIPS_MIN_SIDE,
             "LPIPS: images must be at least {LPIPS_MIN_SIDE}x{LPIPS_MIN_SIDE}, got {height}x{width}"
         );
-        let device = pred.device();
-        let shift = Tensor::<1>::from_floats(SHIFT, &device).reshape([1, 3, 1, 1]);
-        let scale = Tensor::<1>::from_floats(SCALE, &device).reshape([1, 3, 1, 1]);
-        // The prediction and the target go through AlexNet separately: the target's pass is
-        // not tracked (a target and frozen weights), so the backward pass only runs through
-        // the prediction's half.
-        let normalise = |x: Tensor<4>| {
-            x.mul_scalar(2.0)
-                .sub_scalar(1.0)
-                .sub(shift.clone())
-                .div(scale.clone())
-        };
-        let pred_taps = self.taps(normalise(pred));
-        let gt_taps = self.taps(normalise(gt));
-
-        let lins = [&self.lin0, &self.lin1, &self.lin2, &self.lin3, &self.lin4];
-        pred_taps
-            .into_iter()
-            .zip(gt_taps)
-            .zip(lins)
-            .map(|((a, b), lin)| {
-                let diff = unit_normalise(a).sub(unit_normalise(b));
-                let [_, _, h, w] = diff.dims();
-                lin.forward(diff.clone().mul(diff))
-                    .reshape([batch, h * w])
-                    .mean_dim(1)
-                    .reshape([batch])
-            })
-            .reduce(|acc, d| acc.add(d))
-            .expect("five taps")
+        LpipsReference {
+            net: self,
+            dims,
+            taps: self.taps(normalise(gt)).map(unit_normalise),
+        }
     }
 
     /// Per-image LPIPS as numbers (the metric): [`Lpips::forward`] read back to the host. Its
     /// wall time counts as [`Phase::Lpips`].
     pub fn distance(&self, pred: Tensor<4>, gt: Tensor<4>) -> Vec<f64> {
-        timed(Phase::Lpips, || {
-            self.forward(pred, gt)
-                .into_data()
-                .try_into_vec_as::<f32>()
-                .expect("float tensor data")
-                .into_iter()
-                .map(f64::from)
-                .collect()
-        })
+        self.reference(gt).distance(pred)
     }
 
     /// The five ReLU taps of AlexNet's feature extractor.
@@ -217,6 +198,71 @@ impl Lpips {
         let t5 = relu(self.conv5.forward(t4.clone()));
         [t1, t2, t3, t4, t5]
     }
+}
+
+/// A batch of ground-truth images as LPIPS sees them ([`Lpips::reference`]): the five taps'
+/// unit-normalised features, compared with each prediction scored against these images.
+pub struct LpipsReference<'a> {
+    /// The network whose features these are.
+    net: &'a Lpips,
+    /// The ground truth's shape, `[B, 3, H, W]`; predictions must match it.
+    dims: [usize; 4],
+    /// Unit-normalised features of the five taps.
+    taps: [Tensor<4>; 5],
+}
+
+impl LpipsReference<'_> {
+    /// Per-image LPIPS distance of `pred` (`[B, 3, H, W]` in [0, 1], the reference's shape)
+    /// to the reference images; returns `[B]`, differentiable with respect to `pred`.
+    ///
+    /// # Panics
+    /// When `pred`'s shape is not the reference's.
+    pub fn forward(&self, pred: Tensor<4>) -> Tensor<1> {
+        assert_eq!(
+            pred.dims(),
+            self.dims,
+            "LPIPS: prediction and target shapes differ"
+        );
+        let batch = self.dims[0];
+        let net = self.net;
+        let lins = [&net.lin0, &net.lin1, &net.lin2, &net.lin3, &net.lin4];
+        net.taps(normalise(pred))
+            .into_iter()
+            .zip(&self.taps)
+            .zip(lins)
+            .map(|((a, b), lin)| {
+                let diff = unit_normalise(a).sub(b.clone());
+                let [_, _, h, w] = diff.dims();
+                lin.forward(diff.clone().mul(diff))
+                    .reshape([batch, h * w])
+                    .mean_dim(1)
+                    .reshape([batch])
+            })
+            .reduce(|acc, d| acc.add(d))
+            .expect("five taps")
+    }
+
+    /// Per-image LPIPS of `pred` to the reference images as numbers (the metric). Its wall
+    /// time counts as [`Phase::Lpips`].
+    pub fn distance(&self, pred: Tensor<4>) -> Vec<f64> {
+        timed(Phase::Lpips, || {
+            self.forward(pred)
+                .into_data()
+                .try_into_vec_as::<f32>()
+                .expect("float tensor data")
+                .into_iter()
+                .map(f64::from)
+                .collect()
+        })
+    }
+}
+
+/// LPIPS's input scaling of images in [0, 1]: `(2x - 1 - shift) / scale` per channel.
+fn normalise(x: Tensor<4>) -> Tensor<4> {
+    let device = x.device();
+    let shift = Tensor::<1>::from_floats(SHIFT, &device).reshape([1, 3, 1, 1]);
+    let scale = Tensor::<1>::from_floats(SCALE, &device).reshape([1, 3, 1, 1]);
+    x.mul_scalar(2.0).sub_scalar(1.0).sub(shift).div(scale)
 }
 
 /// Unit length along channels: `x / sqrt(sum_c x^2 + eps^2)` (finite gradient at `x = 0`).

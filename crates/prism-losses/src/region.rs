@@ -3,40 +3,33 @@
 
 use burn::tensor::Tensor;
 
-use crate::{ImageScores, LPIPS_MIN_SIDE, Lpips, ssim_map};
+use crate::{GroundTruth, ImageScores, ssim_map};
 
 /// Half the SSIM window: an SSIM map pixel `(y, x)` is the window centred at `(y + 5, x + 5)`.
 const SSIM_RADIUS: usize = crate::SSIM_WINDOW / 2;
 
 /// PSNR, SSIM and LPIPS of each image of a batch in `region` (`[B, 1, H, W]`, 1 inside, 0
-/// outside), `pred` and `gt` `[B, 3, H, W]` in [0, 1]:
+/// outside), `pred` `[B, 3, H, W]` in [0, 1] against `gt`:
 /// - PSNR from the mean squared error over the region's pixels and channels;
 /// - SSIM the mean of the SSIM map (as [`crate::ssim`]) over the windows centred in the
 ///   region;
 /// - LPIPS the distance to `gt` of `gt` with the prediction pasted in on the region: the
-///   perceptual error of the region alone, measured on the whole image (NaN without a network
-///   or below [`LPIPS_MIN_SIDE`]).
+///   perceptual error of the region alone, measured on the whole image (NaN where `gt` has no
+///   LPIPS features).
 ///
 /// An image whose region is empty scores NaN (no pixel to score), as does SSIM when no
 /// window is centred in the region.
-pub fn score_region(
-    pred: Tensor<4>,
-    gt: Tensor<4>,
-    region: Tensor<4>,
-    lpips: Option<&Lpips>,
-) -> Vec<ImageScores> {
+pub fn score_region(pred: Tensor<4>, gt: &GroundTruth<'_>, region: Tensor<4>) -> Vec<ImageScores> {
     let [batch, channels, height, width] = pred.dims();
+    let truth = gt.image.clone();
     let inside: Vec<bool> = host(region.clone()).iter().map(|&r| r > 0.5).collect();
     let plane = height * width;
-    let diff = host(pred.clone().sub(gt.clone()));
-    let map = ssim_map(pred.clone(), gt.clone());
+    let diff = host(pred.clone().sub(truth.clone()));
+    let map = ssim_map(pred.clone(), truth.clone());
     let [_, _, map_h, map_w] = map.dims();
     let map = host(map);
-    let pasted = pred.mul(region.clone()) + gt.clone().mul(region.neg().add_scalar(1.0));
-    let lpips = match lpips.filter(|_| height.min(width) >= LPIPS_MIN_SIDE) {
-        Some(lpips) => lpips.distance(pasted, gt),
-        None => vec![f64::NAN; batch],
-    };
+    let pasted = pred.mul(region.clone()) + truth.mul(region.neg().add_scalar(1.0));
+    let lpips = gt.lpips(pasted);
     (0..batch)
         .map(|b| {
             let inside = &inside[b * plane..(b + 1) * plane];
@@ -130,6 +123,11 @@ mod tests {
         Tensor::from_data(TensorData::new(values, [1, 3, S, S]), &device)
     }
 
+    /// `values` as a ground truth without LPIPS.
+    fn truth(values: Vec<f32>) -> GroundTruth<'static> {
+        GroundTruth::new(image(values), None)
+    }
+
     /// A region of the right half of the image.
     fn right_half() -> Tensor<4> {
         let device = BackendKind::Ndarray.device().unwrap();
@@ -150,7 +148,7 @@ mod tests {
             .enumerate()
             .map(|(i, v)| if i % S < S / 2 { v + 0.3 } else { v + 0.1 })
             .collect();
-        let scores = score_region(image(pred.clone()), image(gt.clone()), right_half(), None);
+        let scores = score_region(image(pred.clone()), &truth(gt.clone()), right_half());
         assert!((scores[0].psnr - 20.0).abs() < 1e-4, "{scores:?}");
         assert!(scores[0].lpips.is_nan());
 
@@ -162,7 +160,7 @@ mod tests {
             .map(|(i, v)| if i % S < S / 2 { 1.0 - v } else { *v })
             .collect();
         let whole = crate::ssim(image(exact.clone()), image(gt.clone()))[0];
-        let scores = score_region(image(exact), image(gt.clone()), right_half(), None);
+        let scores = score_region(image(exact), &truth(gt.clone()), right_half());
         assert!(scores[0].psnr.is_infinite(), "{scores:?}");
         assert!(
             scores[0].ssim > whole && scores[0].ssim <= 1.0,
@@ -172,7 +170,7 @@ mod tests {
         // An empty region has nothing to score.
         let device = BackendKind::Ndarray.device().unwrap();
         let none = Tensor::<4>::zeros([1, 1, S, S], &device);
-        let scores = score_region(image(pred), image(gt), none, None);
+        let scores = score_region(image(pred), &truth(gt), none);
         assert!(scores[0].psnr.is_nan() && scores[0].ssim.is_nan());
     }
 

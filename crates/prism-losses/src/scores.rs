@@ -6,6 +6,7 @@
 use burn::tensor::Tensor;
 use serde::{Deserialize, Deserializer, Serialize};
 
+use crate::lpips::LpipsReference;
 use crate::{LPIPS_MIN_SIDE, Lpips, psnr, ssim};
 
 /// PSNR (dB), SSIM and LPIPS of one image against its ground truth, or their means over
@@ -42,17 +43,43 @@ impl ImageScores {
     }
 }
 
-/// PSNR, SSIM and LPIPS of each image of a batch, `pred` and `gt` `[B, 3, H, W]` in [0, 1]
-/// (H, W >= [`crate::SSIM_WINDOW`]). LPIPS is NaN without a network (`lpips` `None`) or when
-/// the images are smaller than [`LPIPS_MIN_SIDE`].
-pub fn score_images(pred: Tensor<4>, gt: Tensor<4>, lpips: Option<&Lpips>) -> Vec<ImageScores> {
-    let [_, _, height, width] = pred.dims();
-    let p = psnr(pred.clone(), gt.clone());
-    let s = ssim(pred.clone(), gt.clone());
-    let l = match lpips.filter(|_| height.min(width) >= LPIPS_MIN_SIDE) {
-        Some(lpips) => lpips.distance(pred, gt),
-        None => vec![f64::NAN; p.len()],
-    };
+/// A batch of ground-truth images, `[B, 3, H, W]` in [0, 1], ready to score predictions
+/// against: the images, and their LPIPS features when there is a network and the images are
+/// at least [`LPIPS_MIN_SIDE`] on a side. The features are computed once, however many
+/// predictions (methods, regions) are scored against the same images.
+pub struct GroundTruth<'a> {
+    /// The images.
+    pub image: Tensor<4>,
+    /// Their LPIPS features (`None`: LPIPS is not measured, its scores are NaN).
+    lpips: Option<LpipsReference<'a>>,
+}
+
+impl<'a> GroundTruth<'a> {
+    /// `image` with its LPIPS features from `lpips` (none without a network or below
+    /// [`LPIPS_MIN_SIDE`]).
+    pub fn new(image: Tensor<4>, lpips: Option<&'a Lpips>) -> Self {
+        let [_, _, height, width] = image.dims();
+        let lpips = lpips
+            .filter(|_| height.min(width) >= LPIPS_MIN_SIDE)
+            .map(|net| net.reference(image.clone()));
+        Self { image, lpips }
+    }
+
+    /// Per-image LPIPS of `pred` to these images (NaN for each when not measured).
+    pub fn lpips(&self, pred: Tensor<4>) -> Vec<f64> {
+        match &self.lpips {
+            Some(reference) => reference.distance(pred),
+            None => vec![f64::NAN; pred.dims()[0]],
+        }
+    }
+}
+
+/// PSNR, SSIM and LPIPS of each image of a batch, `pred` `[B, 3, H, W]` in [0, 1] against
+/// `gt` (H, W >= [`crate::SSIM_WINDOW`]). LPIPS is NaN where `gt` has no LPIPS features.
+pub fn score_images(pred: Tensor<4>, gt: &GroundTruth<'_>) -> Vec<ImageScores> {
+    let p = psnr(pred.clone(), gt.image.clone());
+    let s = ssim(pred.clone(), gt.image.clone());
+    let l = gt.lpips(pred);
     p.into_iter()
         .zip(s)
         .zip(l)
@@ -70,7 +97,7 @@ mod tests {
         let device = BackendKind::Ndarray.device().unwrap();
         let gt = Tensor::<4>::full([2, 3, 16, 16], 0.5, &device);
         let pred = gt.clone().add_scalar(0.1);
-        let scores = score_images(pred, gt, None);
+        let scores = score_images(pred, &GroundTruth::new(gt, None));
         assert_eq!(scores.len(), 2);
         assert!((scores[0].psnr - 20.0).abs() < 1e-3, "{scores:?}");
         assert!(scores.iter().all(|s| s.lpips.is_nan()));

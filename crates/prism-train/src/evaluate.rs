@@ -32,8 +32,8 @@ use prism_data::{
     DatasetReader, PrismBatcher, RegionMethod, Sample, SampleDataset, SplitKind, TargetSelection,
 };
 use prism_losses::{
-    ImageScores, Lpips, SpeckleSums, psnr, psnr_region_filled, score_images, score_region,
-    speckle_sums,
+    GroundTruth, ImageScores, Lpips, SpeckleSums, psnr, psnr_region_filled, score_images,
+    score_region, speckle_sums,
 };
 use prism_model::{Precision, Prism};
 use serde::Serialize;
@@ -357,11 +357,12 @@ pub fn evaluate(
             if method == RegionMethod::Estimate {
                 disoccluded_by = method;
             }
+            let truth = GroundTruth::new(gt.clone(), lpips);
             // Scores `image` into `tally`; returns it on the host.
             let score = |tally: &mut MethodTally, image: Tensor<4>| {
                 let scores = &mut tally.scores;
-                scores.add_batch(&samples, &score_images(image.clone(), gt.clone(), lpips));
-                let in_region = score_region(image.clone(), gt.clone(), region.clone(), lpips);
+                scores.add_batch(&samples, &score_images(image.clone(), &truth));
+                let in_region = score_region(image.clone(), &truth, region.clone());
                 let filled = psnr_region_filled(image.clone(), gt.clone(), region.clone());
                 scores.add_disoccluded(&samples, &in_region, &filled);
                 let host = HostImages::from_tensor(image);

@@ -8,7 +8,7 @@ use image::{Rgb, RgbImage};
 use prism_data::{
     DatasetReader, PrismBatch, PrismBatcher, Sample, SampleDataset, SplitKind, TargetSelection,
 };
-use prism_losses::{ImageScores, Lpips, score_images};
+use prism_losses::{GroundTruth, ImageScores, Lpips, score_images};
 use prism_model::Prism;
 
 use crate::error::Result;
@@ -122,7 +122,8 @@ impl Validator {
                     }
                 }
             }
-            tally.add_batch(chunk, &score_images(pred, gt, self.lpips.as_ref()));
+            let truth = GroundTruth::new(gt, self.lpips.as_ref());
+            tally.add_batch(chunk, &score_images(pred, &truth));
         }
         tally.finish().mean()
     }
