@@ -11,6 +11,23 @@ use clap::{Parser, Subcommand};
 static ALLOCATOR: prism_model::PeakAllocator<mimalloc::MiMalloc> =
     prism_model::PeakAllocator(mimalloc::MiMalloc);
 
+/// mimalloc's `mi_option_purge_delay`, by its place in `mi_option_e` (the same in the v2 and v3
+/// sources that libmimalloc-sys builds; the crate names no constant for it). Its default in
+/// the v3 that it builds is 1000 (ms), which the tests check.
+const MI_OPTION_PURGE_DELAY: libmimalloc_sys::mi_option_t = 15;
+
+/// Keeps freed memory mapped for reuse. By default mimalloc hands freed pages back to the
+/// kernel after a second, and a training step (about a second on the small config) frees
+/// and allocates its hundreds of MiB further apart than that, so the next step faults them in
+/// again and the kernel zeroes them (11% of a teacher step's samples; BENCHMARKS, issue 43). The process then keeps
+/// its peak heap mapped until it exits. `MIMALLOC_PURGE_DELAY` in the environment still wins.
+fn keep_freed_memory() {
+    if std::env::var_os("MIMALLOC_PURGE_DELAY").is_none() {
+        // SAFETY: sets one of mimalloc's integer options; any value is valid for it.
+        unsafe { libmimalloc_sys::mi_option_set(MI_OPTION_PURGE_DELAY, -1) };
+    }
+}
+
 /// prism: real-time single-image human frontal view synthesis (PrismMirror) on Burn.
 #[derive(Parser, Debug)]
 #[command(name = "prism", version, about, long_about = None)]
@@ -61,6 +78,7 @@ enum Command {
 }
 
 fn main() {
+    keep_freed_memory();
     // A training worker's panic (a served device that stopped answering, say) comes back to
     // the trainer, which reports it as one error naming the device, and so does a panic the
     // trainer catches on the main thread: printing them where they happen too would bury that
@@ -93,5 +111,24 @@ fn main() {
     if let Err(err) = result {
         eprintln!("error: {err:#}");
         std::process::exit(1);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The option number is mimalloc's purge delay: it reads that option's default (1000 ms;
+    /// the options beside it default to 1 and 0), and then the value set.
+    #[test]
+    fn the_purge_delay_option_is_the_one_set() {
+        if std::env::var_os("MIMALLOC_PURGE_DELAY").is_some() {
+            return; // the environment's value replaces the default, and is kept
+        }
+        // SAFETY: reads one of mimalloc's integer options.
+        let get = || unsafe { libmimalloc_sys::mi_option_get(MI_OPTION_PURGE_DELAY) };
+        assert_eq!(get(), 1000);
+        keep_freed_memory();
+        assert_eq!(get(), -1);
     }
 }
