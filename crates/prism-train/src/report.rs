@@ -316,16 +316,16 @@ pub fn markdown_report(
         "The source warped at the true depth, a baseline, is its foreground pixels as Gaussians \
          at the dataset's own 3D points, rendered into each target view: what a geometric \
          output shows with the dataset's depth and the source's colours. Its Gaussians' size \
-         matters, so it was rendered at several footprints on {} ({}) and the best there, {} \
+         matters, so it was rendered at several footprints ({}) on {}, and the best there, {} \
          source pixels, is the one scored here. Model minus it: PSNR {:+.3} dB.\n",
+        sweep.join(", "),
         match e.true_depth_warp_chosen_on {
             SplitKind::Train => "training subjects",
             SplitKind::Test => {
-                "the test subjects themselves (this dataset has no training subjects, so the \
+                "the test subjects themselves, as this dataset has no training subjects (the \
                  baseline is at its best on these views)"
             }
         },
-        sweep.join(", "),
         e.true_depth_warp_footprint,
         e.psnr - e.true_depth_warp.psnr
     );
