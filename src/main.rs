@@ -19,8 +19,9 @@ const MI_OPTION_PURGE_DELAY: libmimalloc_sys::mi_option_t = 15;
 /// Keeps freed memory mapped for reuse. By default mimalloc hands freed pages back to the
 /// kernel after a second, and a training step (about a second on the small config) frees
 /// and allocates its hundreds of MiB further apart than that, so the next step faults them in
-/// again and the kernel zeroes them (11% of a teacher step's samples; BENCHMARKS, issue 43). The process then keeps
-/// its peak heap mapped until it exits. `MIMALLOC_PURGE_DELAY` in the environment still wins.
+/// again and the kernel zeroes them (11% of a teacher step's samples; BENCHMARKS, issue 43).
+/// The process then keeps its peak heap mapped until it exits. `MIMALLOC_PURGE_DELAY` in the
+/// environment still wins.
 fn keep_freed_memory() {
     if std::env::var_os("MIMALLOC_PURGE_DELAY").is_none() {
         // SAFETY: sets one of mimalloc's integer options; any value is valid for it.

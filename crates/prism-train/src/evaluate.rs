@@ -15,8 +15,9 @@
 //! Laplacian over the truth's where the truth is smooth, on the target's foreground. The
 //! true-depth warp's footprint is chosen on training subjects ([`pick_warp_footprint`]), never
 //! on the views it is scored on, except in a test-only dataset (scans from another domain),
-//! where it is chosen on the test subjects and the report says so. With [`EvaluateOptions::oracle`], the 3DGS head's Gaussians are
-//! also drawn with one property at a time taken from the truth ([`crate::oracle`]).
+//! where it is chosen on the test subjects and the report says so. With
+//! [`EvaluateOptions::oracle`], the 3DGS head's Gaussians are also drawn with one property at
+//! a time taken from the truth ([`crate::oracle`]).
 
 use std::collections::BTreeMap;
 use std::fs;
