@@ -78,36 +78,75 @@ enum Command {
     View(commands::view::ViewArgs),
 }
 
+thread_local! {
+    /// Whether a panic on this thread is the command's own, which the panic hook prints.
+    static COMMAND_THREAD: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+impl Command {
+    /// Whether the command runs on a thread of rayon's pool, the one that Burn's CPU kernels
+    /// split their work on. From the main thread, each parallel op wakes a worker and puts the
+    /// main thread to sleep until it is done: thousands of hand-overs a training step, and three
+    /// busy threads on the cores while the workers still spin. On a worker the command shares
+    /// its op with the other workers and keeps its core (a forward pass 0.85x, a training step
+    /// 0.94x on 2 cores; BENCHMARKS, issue 43).
+    ///
+    /// Not for the servers (`serve`, `view`), which wait on sockets, nor for training on several
+    /// devices, whose device threads wait on each other: waiting there would hold one of the
+    /// pool's threads (all of them with `RAYON_NUM_THREADS=1`) from the kernels. Nor with a
+    /// pool of one thread, which gains nothing.
+    fn runs_on_pool(&self) -> bool {
+        let pool = rayon::current_num_threads() > 1;
+        pool && match self {
+            Command::Serve(_) | Command::View(_) => false,
+            Command::TrainTeacher(args) => args.single_device(),
+            Command::DistillStudent(args) => args.single_device(),
+            _ => true,
+        }
+    }
+
+    /// Runs the command on this thread, whose panics the hook prints from then on.
+    fn run(self) -> anyhow::Result<()> {
+        COMMAND_THREAD.set(true);
+        match self {
+            Command::Body(cmd) => cmd.run(),
+            Command::Data(cmd) => cmd.run(),
+            Command::Info(args) => args.run(),
+            Command::Bench(args) => args.run(),
+            Command::Metrics(args) => args.run(),
+            Command::Splat(cmd) => cmd.run(),
+            Command::Convert(cmd) => cmd.run(),
+            Command::TrainTeacher(args) => args.run(),
+            Command::DistillStudent(args) => args.run(),
+            Command::Evaluate(args) => args.run(),
+            Command::Infer(args) => args.run(),
+            Command::Quickstart(args) => args.run(),
+            Command::Serve(args) => args.run(),
+            Command::Ablate(args) => args.run(),
+            Command::View(args) => args.run(),
+        }
+    }
+}
+
 fn main() {
+    COMMAND_THREAD.set(true);
     keep_freed_memory();
     // A training worker's panic (a served device that stopped answering, say) comes back to
     // the trainer, which reports it as one error naming the device, and so does a panic the
-    // trainer catches on the main thread: printing them where they happen too would bury that
-    // line. Other panics of the main thread print as usual.
+    // trainer catches on the command's thread: printing them where they happen too would bury
+    // that line. Other panics of the command's thread print as usual.
     let default_hook = std::panic::take_hook();
     std::panic::set_hook(Box::new(move |info| {
-        let main = std::thread::current().name() == Some("main");
-        if main && !prism_train::served::reports_panics() {
+        if COMMAND_THREAD.get() && !prism_train::served::reports_panics() {
             default_hook(info);
         }
     }));
-    let cli = Cli::parse();
-    let result = match cli.command {
-        Command::Body(cmd) => cmd.run(),
-        Command::Data(cmd) => cmd.run(),
-        Command::Info(args) => args.run(),
-        Command::Bench(args) => args.run(),
-        Command::Metrics(args) => args.run(),
-        Command::Splat(cmd) => cmd.run(),
-        Command::Convert(cmd) => cmd.run(),
-        Command::TrainTeacher(args) => args.run(),
-        Command::DistillStudent(args) => args.run(),
-        Command::Evaluate(args) => args.run(),
-        Command::Infer(args) => args.run(),
-        Command::Quickstart(args) => args.run(),
-        Command::Serve(args) => args.run(),
-        Command::Ablate(args) => args.run(),
-        Command::View(args) => args.run(),
+    let command = Cli::parse().command;
+    let result = if command.runs_on_pool() {
+        // `scope` runs its closure on a worker of the global pool (the caller waits).
+        rayon::scope(|_| command.run())
+    } else {
+        command.run()
     };
     if let Err(err) = result {
         eprintln!("error: {err:#}");
@@ -131,5 +170,34 @@ mod tests {
         assert_eq!(get(), 1000);
         keep_freed_memory();
         assert_eq!(get(), -1);
+    }
+
+    /// The commands that compute run on the pool, the servers and several-device training on
+    /// the main thread; with a pool of one thread, every command does.
+    #[test]
+    fn the_commands_that_compute_run_on_the_pool() {
+        let on_pool = |args: &[&str]| {
+            let cli = Cli::try_parse_from(std::iter::once("prism").chain(args.iter().copied()));
+            cli.expect("arguments parse").command.runs_on_pool()
+        };
+        let pool = rayon::current_num_threads() > 1;
+        let train = ["train-teacher", "--config", "c.toml"];
+        assert_eq!(on_pool(&train), pool);
+        assert_eq!(on_pool(&[&train[..], &["--devices", "1"]].concat()), pool);
+        assert_eq!(on_pool(&["evaluate", "--checkpoint", "run"]), pool);
+        assert_eq!(on_pool(&["bench", "--config", "c.toml"]), pool);
+        assert!(!on_pool(&[&train[..], &["--devices", "2"]].concat()));
+        assert!(!on_pool(
+            &[
+                &train[..],
+                &["--devices", "local,remote:ws://127.0.0.1:7000"]
+            ]
+            .concat()
+        ));
+        let distill = ["distill-student", "--config", "c.toml", "--teacher", "t"];
+        assert_eq!(on_pool(&distill), pool);
+        assert!(!on_pool(&[&distill[..], &["--devices", "2"]].concat()));
+        assert!(!on_pool(&["serve"]));
+        assert!(!on_pool(&["view", "--checkpoint", "run"]));
     }
 }

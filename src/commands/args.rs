@@ -110,6 +110,14 @@ pub struct RunArgs {
 }
 
 impl RunArgs {
+    /// Whether the run trains on one device (`--devices 1`, or a list of one). A list that
+    /// does not parse counts as one: [`RunArgs::options`] reports it.
+    pub fn single_device(&self) -> bool {
+        self.devices
+            .parse::<DeviceList>()
+            .map_or(true, |list| list.len() == 1)
+    }
+
     /// The trainer's options: the run folder (`--out` or `default_out`) and the dataset
     /// (`--data` or `synth`'s, synthesised if needed).
     ///

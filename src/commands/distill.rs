@@ -30,6 +30,11 @@ pub struct DistillStudentArgs {
 }
 
 impl DistillStudentArgs {
+    /// Whether the run trains on one device ([`RunArgs::single_device`]).
+    pub fn single_device(&self) -> bool {
+        self.run.single_device()
+    }
+
     /// Distils, then prints the schedule, the final validation and where the results are.
     pub fn run(self) -> anyhow::Result<()> {
         let mut config = TrainingConfig::load(&self.config)?;

@@ -25,6 +25,11 @@ pub struct TrainTeacherArgs {
 }
 
 impl TrainTeacherArgs {
+    /// Whether the run trains on one device ([`RunArgs::single_device`]).
+    pub fn single_device(&self) -> bool {
+        self.run.single_device()
+    }
+
     /// Trains, then prints the final validation metrics and where the results are.
     pub fn run(self) -> anyhow::Result<()> {
         let config = TrainingConfig::load(&self.config)?;

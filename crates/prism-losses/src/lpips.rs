@@ -188,6 +188,26 @@ impl Lpips {
         self.reference(gt).distance(pred)
     }
 
+    /// A digest of the weights: equal for networks loaded from the same file, so that scores
+    /// kept from one evaluation are only reused by another with the same network.
+    pub fn digest(&self) -> u64 {
+        use std::hash::{Hash, Hasher};
+        let mut hasher = std::collections::hash_map::DefaultHasher::new();
+        let convs = [
+            &self.conv1,
+            &self.conv2,
+            &self.conv3,
+            &self.conv4,
+            &self.conv5,
+        ];
+        let lins = [&self.lin0, &self.lin1, &self.lin2, &self.lin3, &self.lin4];
+        for conv in convs.into_iter().chain(lins) {
+            let weights = conv.weight.val().into_data();
+            weights.as_bytes().hash(&mut hasher);
+        }
+        hasher.finish()
+    }
+
     /// The five ReLU taps of AlexNet's feature extractor.
     fn taps(&self, x: Tensor<4>) -> [Tensor<4>; 5] {
         let pool = |x: Tensor<4>| max_pool2d(x, MaxPoolOptions::new([3, 3]).with_stride([2, 2]));
@@ -306,5 +326,14 @@ mod tests {
         let dot = u[0] * w[0] + u[1] * w[1];
         assert!((g[0] - (w[0] - u[0] * dot) / 5.0).abs() < 1e-5);
         assert!((g[2] - (w[1] - u[1] * dot) / 5.0).abs() < 1e-5);
+    }
+
+    /// Two networks' digests differ when their weights do, and a copy's is the same.
+    #[test]
+    fn the_digest_tells_networks_apart() {
+        let device = BackendKind::Ndarray.device().unwrap();
+        let (a, b) = (Lpips::untrained(&device), Lpips::untrained(&device));
+        assert_eq!(a.digest(), a.clone().digest());
+        assert_ne!(a.digest(), b.digest());
     }
 }

@@ -39,6 +39,7 @@ use prism_losses::{
 use prism_model::{Precision, Prism};
 use serde::Serialize;
 
+use crate::baselines::{BaselineCache, BaselineKey, Baselines};
 use crate::checkpoint::{CHECKPOINTS_DIR, load_inference_model};
 use crate::error::{Result, TrainError};
 use crate::images::{error_map, save_png, tile};
@@ -75,6 +76,9 @@ pub struct EvaluateOptions {
     /// Also score the oracle swaps of [`crate::oracle`] (a diagnostic; needs a 3DGS head with
     /// colour Gaussians and a dataset with point maps).
     pub oracle: bool,
+    /// The baselines' scores of the last evaluation with these options (or a clone of them),
+    /// reused by the next one on the same views: they do not depend on the model.
+    pub baselines: BaselineCache,
 }
 
 impl Default for EvaluateOptions {
@@ -88,6 +92,7 @@ impl Default for EvaluateOptions {
             save_predictions: None,
             precision: Precision::F32,
             oracle: false,
+            baselines: BaselineCache::default(),
         }
     }
 }
@@ -195,8 +200,8 @@ pub struct OracleScores {
 }
 
 /// A method's tallies: its scores and its speckle sums.
-#[derive(Default)]
-struct MethodTally {
+#[derive(Clone, Default)]
+pub(crate) struct MethodTally {
     scores: Tally,
     speckle: SpeckleSums,
 }
@@ -307,10 +312,21 @@ pub fn evaluate(
     .with_depth();
     let mut disoccluded_by = RegionMethod::DepthTest;
     let background = reader.meta().background;
-    let (true_depth_warp_sweep, true_depth_warp_chosen_on) =
-        pick_warp_footprint(reader, resolution, device)?;
-    let footprint = best_footprint(&true_depth_warp_sweep);
     let views = validation_views(options.views);
+    let batch_size = options.batch.max(1);
+    let key = BaselineKey::new(
+        reader.root(),
+        resolution,
+        &views,
+        batch_size,
+        lpips.map(Lpips::digest),
+    );
+    let kept = options.baselines.get(&key);
+    let (true_depth_warp_sweep, true_depth_warp_chosen_on) = match &kept {
+        Some(baselines) => (baselines.sweep.clone(), baselines.chosen_on),
+        None => pick_warp_footprint(reader, resolution, device)?,
+    };
+    let footprint = best_footprint(&true_depth_warp_sweep);
     let grid_views: Vec<usize> = validation_views(options.grid_views.min(views.len()))
         .into_iter()
         .map(|v| views[(v - 1) * views.len() / 100])
@@ -336,7 +352,7 @@ pub fn evaluate(
         if let Some(dir) = &predictions_dir {
             fs::create_dir_all(dir).map_err(|e| TrainError::io(dir, e))?;
         }
-        for chunk in views.chunks(options.batch.max(1)) {
+        for chunk in views.chunks(batch_size) {
             let samples = chunk
                 .iter()
                 .map(|&v| dataset.load(s * 100 + v - 1))
@@ -379,11 +395,13 @@ pub fn evaluate(
                 host
             };
             let pred_host = score(&mut nvs, pred);
-            let src_host = score(&mut copy, batch.source_image.clone());
-            score(
-                &mut warp,
-                true_depth_warp(&samples, background, footprint, device),
-            );
+            let src_host = if kept.is_some() {
+                HostImages::from_tensor(batch.source_image.clone())
+            } else {
+                let warped = true_depth_warp(&samples, background, footprint, device);
+                score(&mut warp, warped);
+                score(&mut copy, batch.source_image.clone())
+            };
             if let Some(g) = &out.gaussians {
                 score(&mut gs, g.image.clone().clamp(0.0, 1.0));
                 if options.oracle {
@@ -427,6 +445,19 @@ pub fn evaluate(
         });
     }
     bar.finish_and_clear();
+    let Baselines { copy, warp, .. } = match kept {
+        Some(baselines) => baselines,
+        None => {
+            let baselines = Baselines {
+                copy,
+                warp,
+                sweep: true_depth_warp_sweep.clone(),
+                chosen_on: true_depth_warp_chosen_on,
+            };
+            options.baselines.put(key, baselines.clone());
+            baselines
+        }
+    };
     let fps = match fps_pair {
         Some(pair) => forward_fps(&fast, &pair, options.fps_runs.max(1)),
         None => f64::NAN,

@@ -123,6 +123,7 @@ impl MethodScores {
 }
 
 /// One scored view: its angles and scores.
+#[derive(Clone)]
 struct ViewScore {
     yaw: f32,
     pitch: f32,
@@ -130,7 +131,7 @@ struct ViewScore {
 }
 
 /// The scores of one prediction method, view by view, grouped by subject.
-#[derive(Default)]
+#[derive(Clone, Default)]
 pub struct Tally {
     subjects: BTreeMap<String, Vec<ImageScores>>,
     views: Vec<ViewScore>,

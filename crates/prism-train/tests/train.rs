@@ -15,8 +15,9 @@ use prism_losses::LossTerms;
 use prism_model::Prism;
 use prism_synth::synth::synth_dataset;
 use prism_train::{
-    Checkpoint, RunOptions, StepLoss, Task, TeacherTask, TrainError, TrainingConfig,
-    evaluate::pick_warp_footprint, list_checkpoints, read_metrics, train, warp::WARP_FOOTPRINTS,
+    Checkpoint, EvaluateOptions, RunOptions, StepLoss, Task, TeacherTask, TrainError,
+    TrainingConfig, evaluate::pick_warp_footprint, list_checkpoints, read_metrics, train,
+    warp::WARP_FOOTPRINTS,
 };
 
 /// One dataset for every test of this file: 5 subjects (one held out) at 32 px.
@@ -581,4 +582,47 @@ fn warp_footprint_is_chosen_on_the_test_subjects_of_a_test_only_dataset() {
             "{sweep:?}"
         );
     }
+}
+
+/// The baselines scored by one evaluation are reused by the next with the same options (a
+/// clone of them): the scores are those of an evaluation that scores them anew, and other
+/// views are scored anew.
+#[test]
+fn evaluations_sharing_options_reuse_the_baselines_and_score_the_same() {
+    let device = BackendKind::Ndarray.device().unwrap();
+    let reader = DatasetReader::open(&dataset()).unwrap();
+    let model = tiny_config(1, |_| {}).model.init(&device);
+    let lpips = prism_losses::Lpips::load_default(None, &device).unwrap();
+    let evaluate = |options: &EvaluateOptions| {
+        prism_train::evaluate(&model, &reader, 32, Some(&lpips), &device, options)
+            .unwrap()
+            .0
+    };
+    let shared = EvaluateOptions {
+        views: 2,
+        grid_views: 1,
+        fps_runs: 1,
+        ..EvaluateOptions::default()
+    };
+    let first = evaluate(&shared);
+    assert!(format!("{:?}", shared.baselines).contains("views: [1, 51]"));
+    let reused = evaluate(&shared.clone());
+    let fresh = evaluate(&EvaluateOptions {
+        baselines: Default::default(),
+        ..shared.clone()
+    });
+    for e in [&reused, &fresh] {
+        assert_eq!(e.copy_source, first.copy_source);
+        assert_eq!(e.true_depth_warp, first.true_depth_warp);
+        assert_eq!(e.true_depth_warp_sweep, first.true_depth_warp_sweep);
+        // NaN at 32 px, where no pixel counts as smooth: compared as printed.
+        assert_eq!(format!("{:?}", e.speckle), format!("{:?}", first.speckle));
+        assert_eq!((e.psnr, e.ssim), (first.psnr, first.ssim));
+    }
+    let more = evaluate(&EvaluateOptions {
+        views: 3,
+        ..shared.clone()
+    });
+    assert!(format!("{:?}", shared.baselines).contains("views: [1, 34, 67]"));
+    assert_ne!(more.copy_source, first.copy_source);
 }

@@ -192,6 +192,12 @@ pub fn ablate(plan: &AblationPlan, options: &PipelineOptions) -> Result<(Ablatio
     let files = AblationFiles::in_folder(&options.out);
     let teacher = options.out.join(AblationRow::Teacher.name());
     let dataset = dataset_digest_of(&options.data)?;
+    // One set of options for every row: their baselines are scored once.
+    let eval = EvaluateOptions {
+        views: plan.views,
+        progress: options.progress,
+        ..EvaluateOptions::default()
+    };
     for (i, &row) in plan.rows.iter().enumerate() {
         if options.progress {
             eprintln!(
@@ -204,7 +210,7 @@ pub fn ablate(plan: &AblationPlan, options: &PipelineOptions) -> Result<(Ablatio
         }
         ablation
             .rows
-            .push(run_row(row, plan, options, &teacher, &dataset)?);
+            .push(run_row(row, plan, options, &eval, &teacher, &dataset)?);
         write_table(&ablation, &files)?;
     }
     Ok((ablation, files))
@@ -216,6 +222,7 @@ fn run_row(
     row: AblationRow,
     plan: &AblationPlan,
     options: &PipelineOptions,
+    eval: &EvaluateOptions,
     teacher: &Path,
     dataset: &str,
 ) -> Result<RowResult> {
@@ -251,18 +258,13 @@ fn run_row(
             train(&config, &task, &run)?;
         }
     }
-    let eval = EvaluateOptions {
-        views: plan.views,
-        progress: options.progress,
-        ..EvaluateOptions::default()
-    };
     let (evaluation, _) = evaluate_checkpoint(
         &dir,
         &options.data,
         &dir.join("evaluation"),
         options.backend,
         options.lpips_weights.as_deref(),
-        &eval,
+        eval,
     )?;
     let seconds = mean_step_seconds(&dir)?;
     let result = RowResult::of(row, steps, seconds, &evaluation, provenance);
