@@ -84,7 +84,7 @@ pub fn backward(
     );
     let mut dx = vec![0.0; x.len()];
     let task = rows_per_task(d) * d;
-    let dgamma = dx
+    let parts: Vec<Vec<f32>> = dx
         .par_chunks_mut(task)
         .zip(x.par_chunks(task).zip(grad.par_chunks(task)))
         .map(|(dx, (x, g))| {
@@ -92,13 +92,13 @@ pub fn backward(
             backward_rows(kind, x, gamma, g, eps, dx, &mut dgamma);
             dgamma
         })
-        .reduce(
-            || vec![0.0; d],
-            |mut a, b| {
-                a.iter_mut().zip(&b).for_each(|(a, b)| *a += b);
-                a
-            },
-        );
+        .collect();
+    // Summed in the tasks' order, not in rayon's reduction tree, whose shape follows which
+    // thread stole what: the same inputs give the same bits on any number of threads.
+    let mut dgamma = vec![0.0; d];
+    for part in parts {
+        dgamma.iter_mut().zip(&part).for_each(|(a, b)| *a += b);
+    }
     (dx, dgamma)
 }
 
@@ -133,6 +133,34 @@ fn backward_rows(
             let xh = (x - centre) * rstd;
             *dg += g * xh;
             *dx = rstd * (*dx - mean_gg - xh * mean_gg_xh);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `dgamma` sums the tasks' parts in their order: the same bits on one thread and on
+    /// three, called from inside the pool, where rayon's reduction tree would follow the steals.
+    #[test]
+    fn the_gamma_gradient_is_the_same_on_any_number_of_threads() {
+        let d = 128;
+        let rows = 40 * rows_per_task(d) + 7;
+        let value = |i: usize| ((i * 7919 + 13) % 1009) as f32 / 1009.0 - 0.5;
+        let x: Vec<f32> = (0..rows * d).map(value).collect();
+        let grad: Vec<f32> = (0..rows * d).map(|i| value(i + 5)).collect();
+        let gamma: Vec<f32> = (0..d).map(|i| 1.0 + value(i + 11)).collect();
+        let on = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| backward(NormKind::Layer, &x, &gamma, &grad, 1e-5))
+        };
+        let one = on(1);
+        for _ in 0..3 {
+            assert_eq!(on(3), one);
         }
     }
 }

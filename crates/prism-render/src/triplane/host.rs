@@ -12,6 +12,13 @@ pub const PLANE_AXES: [[usize; 2]; 3] = [[0, 1], [0, 2], [1, 2]];
 
 /// Points per unit of parallel work.
 const CHUNK: usize = 1024;
+/// Groups of chunks whose plane gradients the backward pass accumulates apart, one buffer of
+/// the planes' size each: a fixed count, so that the sum does not depend on the threads.
+const GROUPS: usize = 4;
+
+/// One group's gradients: of the planes, and of each of its chunks' coordinates (with the
+/// chunk's first point).
+type GroupGradients = (Vec<f32>, Vec<(usize, Vec<f32>)>);
 
 /// One bilinear tap along one axis: the lower texel, the weight of the upper one, and
 /// `d(texel coordinate) / d(coordinate)` (0 where the coordinate is clamped at the border).
@@ -162,12 +169,14 @@ pub fn backward(
     } = dims;
     let total = batch * points;
     let plane_len = 3 * r * r * c;
-    // Each chunk of points accumulates into its own plane buffer; the buffers are summed.
+    // Each group of chunks of points accumulates into its own plane buffer; the buffers are
+    // summed in the groups' order, so that the same inputs give the same bits on any number
+    // of threads.
     let chunks = total.div_ceil(CHUNK);
-    let per_thread = chunks.div_ceil(rayon::current_num_threads().max(1)).max(1);
-    let (grad_planes_last, grad_coords_parts): (Vec<f32>, Vec<(usize, Vec<f32>)>) = (0..chunks)
+    let per_group = chunks.div_ceil(GROUPS).max(1);
+    let groups: Vec<GroupGradients> = (0..chunks)
         .collect::<Vec<_>>()
-        .par_chunks(per_thread)
+        .par_chunks(per_group)
         .map(|group| {
             let mut gp = vec![0.0f32; plane_len];
             let mut parts = Vec::with_capacity(group.len());
@@ -228,16 +237,15 @@ pub fn backward(
             }
             (gp, parts)
         })
-        .reduce(
-            || (vec![0.0f32; plane_len], Vec::new()),
-            |(mut a, mut pa), (b, pb)| {
-                for (x, y) in a.iter_mut().zip(&b) {
-                    *x += y;
-                }
-                pa.extend(pb);
-                (a, pa)
-            },
-        );
+        .collect();
+    let mut grad_planes_last = vec![0.0f32; plane_len];
+    let mut grad_coords_parts = Vec::with_capacity(chunks);
+    for (gp, parts) in groups {
+        for (x, y) in grad_planes_last.iter_mut().zip(&gp) {
+            *x += y;
+        }
+        grad_coords_parts.extend(parts);
+    }
     let mut grad_coords = vec![0.0f32; batch * 3 * points];
     for (start, gc) in grad_coords_parts {
         for (k, g3) in gc.chunks_exact(3).enumerate() {
@@ -249,4 +257,36 @@ pub fn backward(
         }
     }
     (to_channel_first(&grad_planes_last, c, r), grad_coords)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The planes' gradient sums a fixed number of groups in their order: the same bits on
+    /// one thread and on three, called from inside the pool.
+    #[test]
+    fn the_plane_gradient_is_the_same_on_any_number_of_threads() {
+        let dims = Dims {
+            batch: 2,
+            points: 5000,
+            channels: 4,
+            resolution: 16,
+        };
+        let value = |i: usize| ((i * 7919 + 13) % 1009) as f32 / 1009.0 - 0.5;
+        let planes: Vec<f32> = (0..3 * 16 * 16 * 4).map(value).collect();
+        let coords: Vec<f32> = (0..2 * 3 * 5000).map(|i| 1.8 * value(i + 3)).collect();
+        let grad: Vec<f32> = (0..2 * 4 * 5000).map(|i| value(i + 5)).collect();
+        let on = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| backward(&planes, &coords, &grad, dims))
+        };
+        let one = on(1);
+        for _ in 0..3 {
+            assert_eq!(on(3), one);
+        }
+    }
 }
