@@ -88,8 +88,8 @@ impl Command {
     /// split their work on. From the main thread, each parallel op wakes a worker and puts the
     /// main thread to sleep until it is done: thousands of hand-overs a training step, and three
     /// busy threads on the cores while the workers still spin. On a worker the command shares
-    /// its op with the other workers and keeps its core (a forward pass 0.85x, a training step
-    /// 0.94x on 2 cores; BENCHMARKS, issue 43).
+    /// its op with the other workers and keeps its core (the teacher's forward pass 0.88x and a
+    /// training step 0.87x at 128 px on 2 cores; BENCHMARKS, issue 43).
     ///
     /// Not for the servers (`serve`, `view`), which wait on sockets, nor for training on several
     /// devices, whose device threads wait on each other: waiting there would hold one of the
