@@ -110,25 +110,72 @@ fn overlap(p: &Projected, view: &View, tile: (usize, usize, usize, usize)) -> Op
     (ax0 <= ax1 && ay0 <= ay1).then(|| [ax0 - x0, ay0 - y0, ax1 - x0, ay1 - y0])
 }
 
-/// The tile-local columns of `lx0..=lx1` in the row at offset `dy` from the Gaussian's centre
-/// where it may be drawn: where `power <= min(3-sigma limit, ln(255 o))` (beyond that the alpha
-/// is below 1/255), solved for `dx` and widened by a pixel, so that [`alpha_at`] still decides
-/// at the border. A pure speed-up: it only skips pixels that [`alpha_at`] rejects.
-#[inline]
-fn row_span(p: &Projected, dy: f32, x0: usize, lx0: usize, lx1: usize) -> Option<(usize, usize)> {
-    let [a, b, c] = p.conic;
-    let limit = MAX_POWER.min((p.opacity / MIN_ALPHA).ln()) + 0.01;
-    // 0.5 a dx^2 + b dy dx + 0.5 c dy^2 - limit <= 0, with a > 0.
-    let disc = (b * b - a * c) * dy * dy + 2.0 * a * limit;
-    if disc.is_nan() || disc < 0.0 {
-        return None;
+/// Where a Gaussian may be drawn, row by row: the quadratic of [`RowSpans::span`] with its
+/// per-Gaussian terms (a logarithm among them) worked out once, not once per row.
+struct RowSpans {
+    u: f32,
+    b: f32,
+    inv_a: f32,
+    /// `b^2 - a c`, the discriminant's factor of `dy^2`.
+    k: f32,
+    /// `2 a limit`, the discriminant's constant.
+    m: f32,
+}
+
+impl RowSpans {
+    fn of(p: &Projected) -> Self {
+        let [a, b, c] = p.conic;
+        let limit = MAX_POWER.min((p.opacity / MIN_ALPHA).ln()) + 0.01;
+        Self {
+            u: p.u,
+            b,
+            inv_a: 1.0 / a,
+            k: b * b - a * c,
+            m: 2.0 * a * limit,
+        }
     }
-    let root = disc.sqrt();
-    let lo = p.u + (-b * dy - root) / a - 0.5;
-    let hi = p.u + (-b * dy + root) / a - 0.5;
-    let first = (lo.ceil() - 1.0 - x0 as f32).max(lx0 as f32);
-    let last = (hi.floor() + 1.0 - x0 as f32).min(lx1 as f32);
-    (first <= last).then_some((first as usize, last as usize))
+
+    /// The tile-local columns of `lx0..=lx1` in the row at offset `dy` from the Gaussian's
+    /// centre where it may be drawn: where `power <= min(3-sigma limit, ln(255 o))` (beyond
+    /// that the alpha is below 1/255), solved for `dx` and widened by a pixel, so that
+    /// [`alpha_at`] still decides at the border. A pure speed-up: it only skips pixels that
+    /// [`alpha_at`] rejects.
+    #[inline]
+    fn span(&self, dy: f32, x0: usize, lx0: usize, lx1: usize) -> Option<(usize, usize)> {
+        // 0.5 a dx^2 + b dy dx + 0.5 c dy^2 - limit <= 0, with a > 0.
+        let disc = self.k * dy * dy + self.m;
+        if disc.is_nan() || disc < 0.0 {
+            return None;
+        }
+        let root = disc.sqrt();
+        let x0 = x0 as f32 + 0.5;
+        let lo = self.u + (-self.b * dy - root) * self.inv_a - x0;
+        let hi = self.u + (-self.b * dy + root) * self.inv_a - x0;
+        let first = (ceil_near(lo) - 1.0).max(lx0 as f32);
+        let last = (floor_near(hi) + 1.0).min(lx1 as f32);
+        (first <= last).then_some((first as usize, last as usize))
+    }
+}
+
+/// Tile-local columns lie in `0..TILE_SIZE`: a bound outside this margin around them clamps to
+/// the same span.
+const SPAN_MARGIN: f32 = 4.0;
+
+/// `x.ceil()` for `x` clamped to the tile's columns and a margin: a cast, where the baseline
+/// x86-64 target makes `ceil` a library call.
+#[inline]
+fn ceil_near(x: f32) -> f32 {
+    let x = x.clamp(-SPAN_MARGIN, TILE_SIZE as f32 + SPAN_MARGIN);
+    let t = x as i32 as f32;
+    if t < x { t + 1.0 } else { t }
+}
+
+/// `x.floor()` for `x` clamped as in [`ceil_near`].
+#[inline]
+fn floor_near(x: f32) -> f32 {
+    let x = x.clamp(-SPAN_MARGIN, TILE_SIZE as f32 + SPAN_MARGIN);
+    let t = x as i32 as f32;
+    if t > x { t - 1.0 } else { t }
 }
 
 /// The Gaussian's alpha at offset `(dx, dy)` from its centre, with `exp(-power)` and the
@@ -158,10 +205,20 @@ pub struct Composited {
     pub contributors: Vec<u32>,
 }
 
+/// One tile's compositing state, pixel-major: pixel `i`'s channels are `acc[i * ch..][..ch]`,
+/// so that the per-pixel channel loops read and write one contiguous run.
 struct TileOut {
     acc: Vec<f32>,
     t: Vec<f32>,
     n: Vec<u32>,
+}
+
+/// Gaussian `j`'s composited channels: its `C` features, then `1` (for the alpha) and its depth.
+#[inline]
+fn channels_of(fe: &mut [f32], features: &[f32], channels: usize, j: usize, depth: f32) {
+    fe[..channels].copy_from_slice(&features[j * channels..(j + 1) * channels]);
+    fe[channels] = 1.0;
+    fe[channels + 1] = depth;
 }
 
 /// Front-to-back compositing of one camera, in parallel over tiles. `features` is `[N, C]`.
@@ -180,11 +237,12 @@ pub fn composite(
             let rect = tile_rect(tile, view);
             let (x0, y0, tw, th) = rect;
             let np = tw * th;
-            let mut acc = vec![0.0f32; ch * np];
+            let mut acc = vec![0.0f32; np * ch];
             let mut t = vec![1.0f32; np];
             let mut n = vec![0u32; np];
             let mut done = vec![false; np];
             let mut live = np;
+            let mut fe = vec![0.0f32; ch];
             for (k, &j) in lists.tile(tile).iter().enumerate() {
                 if live == 0 {
                     break;
@@ -196,10 +254,11 @@ pub fn composite(
                 let Some([lx0, ly0, lx1, ly1]) = overlap(p, view, rect) else {
                     continue;
                 };
-                let f = &features[j * channels..(j + 1) * channels];
+                channels_of(&mut fe, features, channels, j, p.depth);
+                let rows = RowSpans::of(p);
                 for ly in ly0..=ly1 {
                     let dy = (y0 + ly) as f32 + 0.5 - p.v;
-                    let Some((sx0, sx1)) = row_span(p, dy, x0, lx0, lx1) else {
+                    let Some((sx0, sx1)) = rows.span(dy, x0, lx0, lx1) else {
                         continue;
                     };
                     for lx in sx0..=sx1 {
@@ -218,11 +277,9 @@ pub fn composite(
                             continue;
                         }
                         let w = alpha * t[idx];
-                        for (c, fc) in f.iter().enumerate() {
-                            acc[c * np + idx] += w * fc;
+                        for (a, fc) in acc[idx * ch..(idx + 1) * ch].iter_mut().zip(&fe) {
+                            *a += w * fc;
                         }
-                        acc[channels * np + idx] += w;
-                        acc[(channels + 1) * np + idx] += w * p.depth;
                         t[idx] = next;
                         n[idx] = k as u32 + 1;
                     }
@@ -240,15 +297,16 @@ pub fn composite(
     };
     for (tile, o) in outs.iter().enumerate() {
         let (x0, y0, tw, th) = tile_rect(tile, view);
-        let np = tw * th;
         for ly in 0..th {
             let row = (y0 + ly) * w + x0;
             let src = ly * tw;
             out.transmittance[row..row + tw].copy_from_slice(&o.t[src..src + tw]);
             out.contributors[row..row + tw].copy_from_slice(&o.n[src..src + tw]);
-            for c in 0..ch {
-                out.image[c * w * h + row..c * w * h + row + tw]
-                    .copy_from_slice(&o.acc[c * np + src..c * np + src + tw]);
+            for lx in 0..tw {
+                let pixel = &o.acc[(src + lx) * ch..(src + lx + 1) * ch];
+                for (c, &v) in pixel.iter().enumerate() {
+                    out.image[c * w * h + row + lx] = v;
+                }
             }
         }
     }
@@ -285,8 +343,9 @@ pub fn composite_backward(
             let np = tw * th;
             let mut t = vec![0.0f32; np];
             let mut n = vec![0u32; np];
-            let mut g = vec![0.0f32; ch * np];
-            let mut behind = vec![0.0f32; ch * np];
+            // Pixel-major, like the forward's tile: pixel `i`'s channels at `i * ch..`.
+            let mut g = vec![0.0f32; np * ch];
+            let mut behind = vec![0.0f32; np * ch];
             let mut last = 0usize;
             for ly in 0..th {
                 for lx in 0..tw {
@@ -295,7 +354,7 @@ pub fn composite_backward(
                     n[idx] = forward.contributors[pix];
                     last = last.max(n[idx] as usize);
                     for c in 0..ch {
-                        g[c * np + idx] = grad_image[c * w * h + pix];
+                        g[idx * ch + c] = grad_image[c * w * h + pix];
                     }
                 }
             }
@@ -308,14 +367,13 @@ pub fn composite_backward(
                 let Some([lx0, ly0, lx1, ly1]) = overlap(p, view, rect) else {
                     continue;
                 };
-                fe[..channels].copy_from_slice(&features[j * channels..(j + 1) * channels]);
-                fe[channels] = 1.0;
-                fe[channels + 1] = p.depth;
+                channels_of(&mut fe, features, channels, j, p.depth);
                 let slot = &mut slots[k * stride..(k + 1) * stride];
                 let [a, b, c] = p.conic;
+                let rows = RowSpans::of(p);
                 for ly in ly0..=ly1 {
                     let dy = (y0 + ly) as f32 + 0.5 - p.v;
-                    let Some((sx0, sx1)) = row_span(p, dy, x0, lx0, lx1) else {
+                    let Some((sx0, sx1)) = rows.span(dy, x0, lx0, lx1) else {
                         continue;
                     };
                     for lx in sx0..=sx1 {
@@ -330,18 +388,18 @@ pub fn composite_backward(
                         let tk = t[idx] / (1.0 - alpha);
                         t[idx] = tk;
                         let wk = alpha * tk;
+                        let gp = &g[idx * ch..(idx + 1) * ch];
+                        let bp = &mut behind[idx * ch..(idx + 1) * ch];
                         let mut d_alpha = 0.0;
-                        for (cc, &fc) in fe.iter().enumerate() {
-                            let gc = g[cc * np + idx];
-                            let bc = &mut behind[cc * np + idx];
+                        for ((&fc, &gc), bc) in fe.iter().zip(gp).zip(bp.iter_mut()) {
                             d_alpha += (fc - *bc) * gc;
                             *bc = alpha * fc + (1.0 - alpha) * *bc;
                         }
                         d_alpha *= tk;
-                        for cc in 0..channels {
-                            slot[GRAD_HEAD + cc] += wk * g[cc * np + idx];
+                        for (s, &gc) in slot[GRAD_HEAD..].iter_mut().zip(&gp[..channels]) {
+                            *s += wk * gc;
                         }
-                        slot[2] += wk * g[(channels + 1) * np + idx];
+                        slot[2] += wk * gp[channels + 1];
                         if raw < MAX_ALPHA {
                             slot[6] += gauss * d_alpha;
                             let d_power = -alpha * d_alpha;
@@ -377,7 +435,7 @@ pub fn composite_backward(
 mod tests {
     use super::*;
 
-    /// `row_span` never drops a pixel that `alpha_at` would draw.
+    /// `RowSpans::span` never drops a pixel that `alpha_at` would draw.
     #[test]
     fn row_spans_contain_every_drawn_pixel() {
         let mut state = 12345u64;
@@ -408,12 +466,15 @@ mod tests {
             };
             for row in -25..=25 {
                 let dy = row as f32 + 0.5 * rand();
-                let span = row_span(&p, dy, 0, 0, 63);
-                for x in 0..64usize {
-                    if alpha_at(&p, x as f32 + 0.5 - p.u, dy).is_some() {
-                        drawn += 1;
-                        let (a, b) = span.expect("a drawn pixel in a rejected row");
-                        assert!(a <= x && x <= b, "{x} outside {a}..={b}");
+                // Four tiles side by side, the Gaussian's centre in the second.
+                for x0 in (0..4).map(|t| t * TILE_SIZE) {
+                    let span = RowSpans::of(&p).span(dy, x0, 0, TILE_SIZE - 1);
+                    for lx in 0..TILE_SIZE {
+                        if alpha_at(&p, (x0 + lx) as f32 + 0.5 - p.u, dy).is_some() {
+                            drawn += 1;
+                            let (a, b) = span.expect("a drawn pixel in a rejected row");
+                            assert!(a <= lx && lx <= b, "{x0} + {lx} outside {a}..={b}");
+                        }
                     }
                 }
             }
