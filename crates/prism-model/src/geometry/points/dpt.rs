@@ -16,7 +16,7 @@ use burn::config::Config;
 use burn::module::Module;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::{Initializer, Linear, LinearConfig, PaddingConfig2d};
-use burn::tensor::{Device, Tensor};
+use burn::tensor::{Device, Tensor, TensorData};
 use prism_core::axes::permute;
 use prism_kernels::gelu;
 
@@ -129,57 +129,56 @@ pub(crate) fn shuffle(x: Tensor<3>, c: usize, f: usize, h: usize, w: usize) -> T
     permute(x.reshape([b, h, w, f, f, c]), [0, 5, 1, 3, 2, 4]).reshape([b, c, h * f, w * f])
 }
 
-/// Bilinear upsampling of `[B, C, H, W]` by the integer factor `f` along axis `dim` (2 or 3),
+/// The `[n, f n]` matrix of bilinear upsampling by the integer factor `f` along one axis,
 /// with half-pixel centres and edge clamping (`align_corners = false`, as Burn's and PyTorch's
 /// bilinear `interpolate`): output `f i + r` reads the input at `i + d_r`,
-/// `d_r = (2 r + 1 - f) / 2f`, i.e. `(1 - |d_r|) x_i + |d_r| x_{i +- 1}`. Built from slices so
-/// that its backward pass runs on every backend (ndarray has no bilinear `interpolate`
-/// backward).
-fn upsample_axis(x: Tensor<4>, f: usize, dim: usize) -> Tensor<4> {
-    if f == 1 {
-        return x;
-    }
-    let n = x.dims()[dim];
-    let (prev, next) = if n > 1 {
-        (
-            Tensor::cat(
-                vec![x.clone().narrow(dim, 0, 1), x.clone().narrow(dim, 0, n - 1)],
-                dim,
-            ),
-            Tensor::cat(
-                vec![
-                    x.clone().narrow(dim, 1, n - 1),
-                    x.clone().narrow(dim, n - 1, 1),
-                ],
-                dim,
-            ),
-        )
-    } else {
-        (x.clone(), x.clone())
-    };
-    let phases: Vec<Tensor<4>> = (0..f)
-        .map(|r| {
+/// `d_r = (2 r + 1 - f) / 2f`, i.e. `(1 - |d_r|) x_i + |d_r| x_{i +- 1}`.
+fn upsampling_matrix(n: usize, f: usize, device: &Device) -> Tensor<2> {
+    let mut m = vec![0.0f32; n * n * f];
+    for i in 0..n {
+        for r in 0..f {
             let d = (2.0 * r as f32 + 1.0 - f as f32) / (2.0 * f as f32);
-            let neighbour = if d < 0.0 { &prev } else { &next };
-            x.clone().mul_scalar(1.0 - d.abs()) + neighbour.clone().mul_scalar(d.abs())
-        })
-        .collect();
-    let mut dims = x.dims();
-    dims[dim] *= f;
-    Tensor::stack::<5>(phases, dim + 1).reshape(dims)
+            let neighbour = if d < 0.0 {
+                i.saturating_sub(1)
+            } else {
+                (i + 1).min(n - 1)
+            };
+            let column = f * i + r;
+            m[i * n * f + column] += 1.0 - d.abs();
+            m[neighbour * n * f + column] += d.abs();
+        }
+    }
+    Tensor::from_data(TensorData::new(m, [n, n * f]), device)
 }
 
-/// Bilinear upsampling of `x` to `height x width`, integer multiples of its size.
+/// Bilinear upsampling of `x` to `height x width`, integer multiples of its size: one matrix
+/// product per axis with [`upsampling_matrix`], whose backward pass is two products on every
+/// backend (ndarray has no bilinear `interpolate` backward).
 ///
 /// # Panics
 /// If `height` or `width` is not a multiple of the input's size.
 pub(crate) fn resize(x: Tensor<4>, height: usize, width: usize) -> Tensor<4> {
-    let [_, _, h, w] = x.dims();
+    let [b, c, h, w] = x.dims();
     assert!(
         height.is_multiple_of(h) && width.is_multiple_of(w),
         "DPT upsampling from {h}x{w} to {height}x{width} is not by an integer factor"
     );
-    upsample_axis(upsample_axis(x, height / h, 2), width / w, 3)
+    let device = x.device();
+    let x = if width == w {
+        x
+    } else {
+        x.reshape([b * c * h, w])
+            .matmul(upsampling_matrix(w, width / w, &device))
+            .reshape([b, c, h, width])
+    };
+    if height == h {
+        return x;
+    }
+    upsampling_matrix(h, height / h, &device)
+        .transpose()
+        .unsqueeze::<3>()
+        .matmul(x.reshape([b * c, h, width]))
+        .reshape([b, c, height, width])
 }
 
 /// A per-pixel linear layer on `[B, C, H, W]`: `W^T x` over the channels of every pixel,
@@ -290,15 +289,41 @@ mod tests {
     }
 
     #[test]
+    fn upsampling_gradients_match_finite_differences() {
+        use burn::tensor::Distribution;
+        let device = crate::test_util::ndarray();
+        device.seed(3);
+        let ad = device.clone().autodiff();
+        let x = Tensor::<4>::random([1, 2, 3, 2], Distribution::Normal(0.0, 1.0), &device);
+        let y = Tensor::<4>::random([1, 2, 6, 8], Distribution::Normal(0.0, 1.0), &device);
+        // loss(x) = sum(resize(x) * y): linear in x, so central differences are exact but for
+        // rounding.
+        let loss = |x: Tensor<4>| -> f32 { (resize(x, 6, 8) * y.clone()).sum().into_scalar() };
+        let tracked = Tensor::<4>::from_data(x.to_data(), &ad).require_grad();
+        let grads = (resize(tracked.clone(), 6, 8) * Tensor::from_data(y.to_data(), &ad))
+            .sum()
+            .backward();
+        let grad = crate::test_util::values(&tracked.grad(&grads).expect("x is tracked"));
+        let base = crate::test_util::values(&x);
+        let eps = 1e-2;
+        for (i, &g) in grad.iter().enumerate() {
+            let at = |delta: f32| {
+                let mut v = base.clone();
+                v[i] += delta;
+                loss(Tensor::from_data(TensorData::new(v, [1, 2, 3, 2]), &device))
+            };
+            let fd = (at(eps) - at(-eps)) / (2.0 * eps);
+            assert!((g - fd).abs() < 1e-3, "element {i}: {g} against {fd}");
+        }
+    }
+
+    #[test]
     fn pixel_shuffle_places_each_token_on_its_patch() {
         let device = crate::test_util::ndarray();
         // One channel, factor 2, a 1 x 2 grid: token t's four values land in its 2x2 patch,
         // row-major inside the patch.
         let x = Tensor::<3>::from_data(
-            burn::tensor::TensorData::new(
-                vec![1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0],
-                [1, 2, 4],
-            ),
+            TensorData::new(vec![1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0], [1, 2, 4]),
             &device,
         );
         let map = crate::test_util::values(&shuffle(x, 1, 2, 1, 2));
