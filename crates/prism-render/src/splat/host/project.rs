@@ -17,7 +17,7 @@
 use glam::{Mat3, Vec3};
 
 use super::view::View;
-use super::{DILATION, EXTENT_SIGMAS, NEAR_PLANE};
+use super::{DILATION, EXTENT_SIGMAS, MAX_POWER, MIN_ALPHA, NEAR_PLANE};
 
 /// One Gaussian as seen by one camera: everything the compositing needs.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -32,13 +32,33 @@ pub struct Projected {
     pub conic: [f32; 3],
     /// `sigmoid(opacity_logit)`.
     pub opacity: f32,
-    /// Half extents of the 3-sigma ellipse's bounding box, `3 sqrt(Σ'_xx)`, `3 sqrt(Σ'_yy)`.
+    /// Half extents of the bounding box of the ellipse where the Gaussian can be drawn,
+    /// `sqrt(2 P Σ'_xx)`, `sqrt(2 P Σ'_yy)` with `P` its [`support_power`]: the 3-sigma box,
+    /// `3 sqrt(Σ'_xx)`, for all but faint Gaussians, whose alpha falls below 1/255 sooner.
     pub extent: [f32; 2],
 }
 
+/// The largest `power = d^T conic d / 2` at which a Gaussian of opacity `opacity` can still be
+/// drawn: the 3-sigma limit, or sooner `ln(255 o)`, where its alpha `o exp(-power)` falls
+/// below 1/255; widened by 0.01 so that bounds built on it keep every drawn pixel despite
+/// rounding. At most 0.01 for a Gaussian too faint to draw anywhere.
+pub fn support_power(opacity: f32) -> f32 {
+    MAX_POWER.min((opacity / MIN_ALPHA).ln()) + 0.01
+}
+
+/// The half extent of the drawn support along an axis of variance `variance` (see
+/// [`Projected::extent`]).
+pub(super) fn half_extent(variance: f32, power: f32) -> f32 {
+    if power >= MAX_POWER {
+        EXTENT_SIGMAS * variance.sqrt()
+    } else {
+        (2.0 * power.max(0.0) * variance).sqrt()
+    }
+}
+
 impl Projected {
-    /// Inclusive pixel index ranges `[x0, x1] x [y0, y1]` whose centres lie in the 3-sigma
-    /// bounding box, clipped to a `width x height` image; `None` when empty.
+    /// Inclusive pixel index ranges `[x0, x1] x [y0, y1]` whose centres lie in the bounding
+    /// box of the drawn support ([`Projected::extent`]), clipped to a `width x height` image; `None` when empty.
     pub fn pixel_rect(&self, width: usize, height: usize) -> Option<[usize; 4]> {
         let x0 = (self.u - self.extent[0] - 0.5).ceil().max(0.0);
         let y0 = (self.v - self.extent[1] - 0.5).ceil().max(0.0);
@@ -204,15 +224,17 @@ fn intermediates(p: &Params, view: &View) -> Option<Intermediates> {
 pub fn project(p: &Params, view: &View) -> Option<Projected> {
     let it = intermediates(p, view)?;
     let rz = 1.0 / it.cam.z;
+    let opacity = sigmoid(p.opacity_logit);
+    let power = support_power(opacity);
     Some(Projected {
         u: view.fx * it.cam.x * rz + view.cx,
         v: view.fy * it.cam.y * rz + view.cy,
         depth: it.cam.z,
         conic: it.conic,
-        opacity: sigmoid(p.opacity_logit),
+        opacity,
         extent: [
-            EXTENT_SIGMAS * it.cov2[0].sqrt(),
-            EXTENT_SIGMAS * it.cov2[2].sqrt(),
+            half_extent(it.cov2[0], power),
+            half_extent(it.cov2[2], power),
         ],
     })
 }

@@ -18,7 +18,7 @@
 
 use rayon::prelude::*;
 
-use super::project::Projected;
+use super::project::{Projected, support_power};
 use super::view::View;
 use super::{MAX_ALPHA, MAX_POWER, MIN_ALPHA, MIN_TRANSMITTANCE, TILE_SIZE};
 
@@ -125,7 +125,7 @@ struct RowSpans {
 impl RowSpans {
     fn of(p: &Projected) -> Self {
         let [a, b, c] = p.conic;
-        let limit = MAX_POWER.min((p.opacity / MIN_ALPHA).ln()) + 0.01;
+        let limit = support_power(p.opacity);
         Self {
             u: p.u,
             b,
@@ -434,6 +434,64 @@ pub fn composite_backward(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The bounding box of a Gaussian's drawn support (`Projected::pixel_rect`) holds every
+    /// pixel that `alpha_at` draws, for opaque Gaussians and for faint ones, whose box is
+    /// smaller than the 3-sigma one.
+    #[test]
+    fn pixel_rects_contain_every_drawn_pixel() {
+        use super::super::project::half_extent;
+        let mut state = 987u64;
+        let mut rand = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let (mut drawn, mut smaller) = (0, 0);
+        for _ in 0..400 {
+            let (sx, sy, t) = (0.2 + 6.0 * rand(), 0.2 + 6.0 * rand(), 6.3 * rand());
+            let (cs, sn) = (t.cos(), t.sin());
+            let cov = [
+                cs * cs * sx * sx + sn * sn * sy * sy + 0.3,
+                cs * sn * (sx * sx - sy * sy),
+                sn * sn * sx * sx + cs * cs * sy * sy + 0.3,
+            ];
+            let det = cov[0] * cov[2] - cov[1] * cov[1];
+            // Opacities from 0.0002 (never drawn) to 1, evenly in the logarithm.
+            let opacity = (10.0f32).powf(-3.7 * rand());
+            let power = support_power(opacity);
+            let p = Projected {
+                u: 32.0 + rand(),
+                v: 32.0 + rand(),
+                depth: 1.0,
+                conic: [cov[2] / det, -cov[1] / det, cov[0] / det],
+                opacity,
+                extent: [half_extent(cov[0], power), half_extent(cov[2], power)],
+            };
+            if p.extent[0] < 3.0 * cov[0].sqrt() {
+                smaller += 1;
+            }
+            let rect = p.pixel_rect(64, 64);
+            for y in 0..64usize {
+                for x in 0..64usize {
+                    let (dx, dy) = (x as f32 + 0.5 - p.u, y as f32 + 0.5 - p.v);
+                    if alpha_at(&p, dx, dy).is_some() {
+                        drawn += 1;
+                        let [x0, y0, x1, y1] = rect.expect("a drawn pixel outside an empty box");
+                        assert!(
+                            (x0..=x1).contains(&x) && (y0..=y1).contains(&y),
+                            "({x}, {y}) outside {rect:?} at opacity {opacity}"
+                        );
+                    }
+                }
+            }
+        }
+        assert!(
+            drawn > 10_000 && smaller > 100,
+            "{drawn} drawn, {smaller} smaller boxes"
+        );
+    }
 
     /// `RowSpans::span` never drops a pixel that `alpha_at` would draw.
     #[test]
