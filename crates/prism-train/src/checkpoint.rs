@@ -156,7 +156,7 @@ impl Checkpoint {
                 ),
             ));
         }
-        let config = TrainingConfig::load(dir.join(files::CONFIG))?;
+        let config = TrainingConfig::load_stored(dir.join(files::CONFIG))?;
         let attention: Vec<AttentionKind> = read_json(&dir.join(files::ATTENTION))?;
         if attention.len() != config.model.num_blocks() {
             return Err(TrainError::checkpoint(

@@ -87,6 +87,31 @@ struct OwnSections {
     data: SynthOptions,
 }
 
+/// `text` with every loss weight that is 0 in the paper's objective and absent from its
+/// `[losses]` section written in as 0; `text` itself when nothing is absent or it does not
+/// parse (then [`TrainingConfig::parse`] reports it, with its line).
+fn with_absent_terms_off(text: &str) -> String {
+    let Ok(mut doc) = text.parse::<toml::Table>() else {
+        return text.to_string();
+    };
+    let Some(toml::Value::Table(losses)) = doc.get_mut("losses") else {
+        return text.to_string();
+    };
+    let paper = toml::Table::try_from(LossWeights::new()).expect("loss weights serialise");
+    let mut added = false;
+    for (name, value) in paper {
+        if value.as_float() == Some(0.0) && !losses.contains_key(&name) {
+            losses.insert(name, value);
+            added = true;
+        }
+    }
+    if added {
+        toml::to_string(&doc).expect("a parsed config serialises")
+    } else {
+        text.to_string()
+    }
+}
+
 impl TrainingConfig {
     /// Parses a config text and checks every section; `origin` (usually the file's path) names
     /// the text in errors.
@@ -130,6 +155,22 @@ impl TrainingConfig {
             cause,
         })?;
         Self::parse(&text, path)
+    }
+
+    /// Reads the config that a run folder or checkpoint stored (see [`TrainingConfig::load`]).
+    /// A run written before one of the loss terms beyond the paper existed lacks that term's
+    /// weight: the term was not in its objective, so its weight reads as 0 (the paper config's
+    /// value for every such term). Every other missing field is an error, as in a config file.
+    ///
+    /// # Errors
+    /// As [`TrainingConfig::load`].
+    pub fn load_stored(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        let text = std::fs::read_to_string(path).map_err(|cause| TrainError::ReadConfig {
+            path: path.to_path_buf(),
+            cause,
+        })?;
+        Self::parse(&with_absent_terms_off(&text), path)
     }
 
     /// The config as TOML text (what a run folder and its checkpoints store).
@@ -278,6 +319,32 @@ mod tests {
             (1e-5, 2e-4)
         );
         assert_eq!(paper.losses, LossWeights::new());
+    }
+
+    #[test]
+    fn a_stored_config_from_before_a_loss_term_reads_it_as_off() {
+        let dir = std::env::temp_dir().join(format!("prism-config-stored-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("config.toml");
+        // A run of the small config, stored before `L_spread` and `L_centres` existed.
+        let small = std::fs::read_to_string(configs_dir().join("small.toml")).unwrap();
+        let old: String = small
+            .lines()
+            .filter(|l| !l.starts_with("gs_spread") && !l.starts_with("gs_centres"))
+            .map(|l| format!("{l}\n"))
+            .collect();
+        std::fs::write(&path, &old).unwrap();
+        let stored = TrainingConfig::load_stored(&path).unwrap();
+        let mut want = TrainingConfig::load(configs_dir().join("small.toml")).unwrap();
+        want.losses.gs_spread = 0.0;
+        assert_eq!(stored.to_toml(), want.to_toml());
+        // A config file must still name every field, and a stored config every other one.
+        let err = TrainingConfig::load(&path).unwrap_err().to_string();
+        assert!(err.contains("missing field `gs_centres`"), "{err}");
+        std::fs::write(&path, old.replace("warmup_steps", "warmup_stepz")).unwrap();
+        let err = TrainingConfig::load_stored(&path).unwrap_err().to_string();
+        assert!(err.contains("warmup_steps"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
