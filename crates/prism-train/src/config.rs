@@ -87,6 +87,14 @@ struct OwnSections {
     data: SynthOptions,
 }
 
+/// The text of the config file at `path`.
+fn read_config(path: &Path) -> Result<String> {
+    std::fs::read_to_string(path).map_err(|cause| TrainError::ReadConfig {
+        path: path.to_path_buf(),
+        cause,
+    })
+}
+
 /// `text` with every loss weight that is 0 in the paper's objective and absent from its
 /// `[losses]` section written in as 0; `text` itself when nothing is absent or it does not
 /// parse (then [`TrainingConfig::parse`] reports it, with its line).
@@ -150,11 +158,7 @@ impl TrainingConfig {
     /// [`TrainingConfig::parse`].
     pub fn load(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|cause| TrainError::ReadConfig {
-            path: path.to_path_buf(),
-            cause,
-        })?;
-        Self::parse(&text, path)
+        Self::parse(&read_config(path)?, path)
     }
 
     /// Reads the config that a run folder or checkpoint stored (see [`TrainingConfig::load`]).
@@ -166,11 +170,7 @@ impl TrainingConfig {
     /// As [`TrainingConfig::load`].
     pub fn load_stored(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|cause| TrainError::ReadConfig {
-            path: path.to_path_buf(),
-            cause,
-        })?;
-        Self::parse(&with_absent_terms_off(&text), path)
+        Self::parse(&with_absent_terms_off(&read_config(path)?), path)
     }
 
     /// The config as TOML text (what a run folder and its checkpoints store).

@@ -435,29 +435,41 @@ pub fn composite_backward(
 mod tests {
     use super::*;
 
+    /// Uniform numbers in `[0, 1)` from a fixed seed (a linear congruential generator).
+    fn uniform(seed: u64) -> impl FnMut() -> f32 {
+        let mut state = seed;
+        move || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        }
+    }
+
+    /// A random positive-definite 2D covariance `[xx, xy, yy]` (0.2 to 6.2 px along random
+    /// axes, with the dilation) and its conic.
+    fn random_covariance(rand: &mut impl FnMut() -> f32) -> ([f32; 3], [f32; 3]) {
+        let (sx, sy, t) = (0.2 + 6.0 * rand(), 0.2 + 6.0 * rand(), 6.3 * rand());
+        let (cs, sn) = (t.cos(), t.sin());
+        let cov = [
+            cs * cs * sx * sx + sn * sn * sy * sy + 0.3,
+            cs * sn * (sx * sx - sy * sy),
+            sn * sn * sx * sx + cs * cs * sy * sy + 0.3,
+        ];
+        let det = cov[0] * cov[2] - cov[1] * cov[1];
+        (cov, [cov[2] / det, -cov[1] / det, cov[0] / det])
+    }
+
     /// The bounding box of a Gaussian's drawn support (`Projected::pixel_rect`) holds every
     /// pixel that `alpha_at` draws, for opaque Gaussians and for faint ones, whose box is
     /// smaller than the 3-sigma one.
     #[test]
     fn pixel_rects_contain_every_drawn_pixel() {
         use super::super::project::half_extent;
-        let mut state = 987u64;
-        let mut rand = || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (state >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut rand = uniform(987);
         let (mut drawn, mut smaller) = (0, 0);
         for _ in 0..400 {
-            let (sx, sy, t) = (0.2 + 6.0 * rand(), 0.2 + 6.0 * rand(), 6.3 * rand());
-            let (cs, sn) = (t.cos(), t.sin());
-            let cov = [
-                cs * cs * sx * sx + sn * sn * sy * sy + 0.3,
-                cs * sn * (sx * sx - sy * sy),
-                sn * sn * sx * sx + cs * cs * sy * sy + 0.3,
-            ];
-            let det = cov[0] * cov[2] - cov[1] * cov[1];
+            let (cov, conic) = random_covariance(&mut rand);
             // Opacities from 0.0002 (never drawn) to 1, evenly in the logarithm.
             let opacity = (10.0f32).powf(-3.7 * rand());
             let power = support_power(opacity);
@@ -465,7 +477,7 @@ mod tests {
                 u: 32.0 + rand(),
                 v: 32.0 + rand(),
                 depth: 1.0,
-                conic: [cov[2] / det, -cov[1] / det, cov[0] / det],
+                conic,
                 opacity,
                 extent: [half_extent(cov[0], power), half_extent(cov[2], power)],
             };
@@ -496,29 +508,15 @@ mod tests {
     /// `RowSpans::span` never drops a pixel that `alpha_at` would draw.
     #[test]
     fn row_spans_contain_every_drawn_pixel() {
-        let mut state = 12345u64;
-        let mut rand = || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (state >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut rand = uniform(12345);
         let mut drawn = 0;
         for _ in 0..300 {
-            // A random positive-definite 2D covariance (with the dilation) and opacity.
-            let (sx, sy, t) = (0.2 + 6.0 * rand(), 0.2 + 6.0 * rand(), 6.3 * rand());
-            let (cs, sn) = (t.cos(), t.sin());
-            let cov = [
-                cs * cs * sx * sx + sn * sn * sy * sy + 0.3,
-                cs * sn * (sx * sx - sy * sy),
-                sn * sn * sx * sx + cs * cs * sy * sy + 0.3,
-            ];
-            let det = cov[0] * cov[2] - cov[1] * cov[1];
+            let (_, conic) = random_covariance(&mut rand);
             let p = Projected {
                 u: 20.0 + 10.0 * rand(),
                 v: 0.0,
                 depth: 1.0,
-                conic: [cov[2] / det, -cov[1] / det, cov[0] / det],
+                conic,
                 opacity: 0.003 + rand(),
                 extent: [0.0; 2],
             };
