@@ -39,7 +39,7 @@ impl TileLists {
 }
 
 /// Sorts the visible Gaussians by depth (ties by index, so the order is deterministic) and
-/// lists, per tile, those whose 3-sigma box covers one of its pixel centres.
+/// lists, per tile, those whose box ([`Projected::extent`]) covers one of its pixel centres.
 pub fn bin(projected: &[Option<Projected>], view: &View) -> TileLists {
     let (w, h) = (view.width, view.height);
     let tiles_x = view.tiles_x();
