@@ -32,8 +32,11 @@ pub struct Projected {
     pub conic: [f32; 3],
     /// `sigmoid(opacity_logit)`.
     pub opacity: f32,
+    /// The largest `power` at which it is drawn: [`support_power`] of its opacity, worked out
+    /// once here and read by every tile and row that bounds its drawing.
+    pub support: f32,
     /// Half extents of the bounding box of the ellipse where the Gaussian can be drawn,
-    /// `sqrt(2 P Σ'_xx)`, `sqrt(2 P Σ'_yy)` with `P` its [`support_power`]: the 3-sigma box,
+    /// `sqrt(2 P Σ'_xx)`, `sqrt(2 P Σ'_yy)` with `P` its `support`: the 3-sigma box,
     /// `3 sqrt(Σ'_xx)`, for all but faint Gaussians, whose alpha falls below 1/255 sooner.
     pub extent: [f32; 2],
 }
@@ -58,7 +61,8 @@ pub(super) fn half_extent(variance: f32, power: f32) -> f32 {
 
 impl Projected {
     /// Inclusive pixel index ranges `[x0, x1] x [y0, y1]` whose centres lie in the bounding
-    /// box of the drawn support ([`Projected::extent`]), clipped to a `width x height` image; `None` when empty.
+    /// box of the drawn support ([`Projected::extent`]), clipped to a `width x height` image;
+    /// `None` when empty.
     pub fn pixel_rect(&self, width: usize, height: usize) -> Option<[usize; 4]> {
         let x0 = (self.u - self.extent[0] - 0.5).ceil().max(0.0);
         let y0 = (self.v - self.extent[1] - 0.5).ceil().max(0.0);
@@ -225,16 +229,17 @@ pub fn project(p: &Params, view: &View) -> Option<Projected> {
     let it = intermediates(p, view)?;
     let rz = 1.0 / it.cam.z;
     let opacity = sigmoid(p.opacity_logit);
-    let power = support_power(opacity);
+    let support = support_power(opacity);
     Some(Projected {
         u: view.fx * it.cam.x * rz + view.cx,
         v: view.fy * it.cam.y * rz + view.cy,
         depth: it.cam.z,
         conic: it.conic,
         opacity,
+        support,
         extent: [
-            half_extent(it.cov2[0], power),
-            half_extent(it.cov2[2], power),
+            half_extent(it.cov2[0], support),
+            half_extent(it.cov2[2], support),
         ],
     })
 }

@@ -18,7 +18,7 @@
 
 use rayon::prelude::*;
 
-use super::project::{Projected, support_power};
+use super::project::Projected;
 use super::view::View;
 use super::{MAX_ALPHA, MAX_POWER, MIN_ALPHA, MIN_TRANSMITTANCE, TILE_SIZE};
 
@@ -111,7 +111,7 @@ fn overlap(p: &Projected, view: &View, tile: (usize, usize, usize, usize)) -> Op
 }
 
 /// Where a Gaussian may be drawn, row by row: the quadratic of [`RowSpans::span`] with its
-/// per-Gaussian terms (a logarithm among them) worked out once, not once per row.
+/// per-Gaussian terms worked out once, not once per row.
 struct RowSpans {
     u: f32,
     b: f32,
@@ -125,7 +125,7 @@ struct RowSpans {
 impl RowSpans {
     fn of(p: &Projected) -> Self {
         let [a, b, c] = p.conic;
-        let limit = support_power(p.opacity);
+        let limit = p.support;
         Self {
             u: p.u,
             b,
@@ -433,6 +433,7 @@ pub fn composite_backward(
 
 #[cfg(test)]
 mod tests {
+    use super::super::project::{half_extent, support_power};
     use super::*;
 
     /// Uniform numbers in `[0, 1)` from a fixed seed (a linear congruential generator).
@@ -465,21 +466,21 @@ mod tests {
     /// smaller than the 3-sigma one.
     #[test]
     fn pixel_rects_contain_every_drawn_pixel() {
-        use super::super::project::half_extent;
         let mut rand = uniform(987);
         let (mut drawn, mut smaller) = (0, 0);
         for _ in 0..400 {
             let (cov, conic) = random_covariance(&mut rand);
             // Opacities from 0.0002 (never drawn) to 1, evenly in the logarithm.
             let opacity = (10.0f32).powf(-3.7 * rand());
-            let power = support_power(opacity);
+            let support = support_power(opacity);
             let p = Projected {
                 u: 32.0 + rand(),
                 v: 32.0 + rand(),
                 depth: 1.0,
                 conic,
                 opacity,
-                extent: [half_extent(cov[0], power), half_extent(cov[2], power)],
+                support,
+                extent: [half_extent(cov[0], support), half_extent(cov[2], support)],
             };
             if p.extent[0] < 3.0 * cov[0].sqrt() {
                 smaller += 1;
@@ -512,12 +513,14 @@ mod tests {
         let mut drawn = 0;
         for _ in 0..300 {
             let (_, conic) = random_covariance(&mut rand);
+            let opacity = 0.003 + rand();
             let p = Projected {
                 u: 20.0 + 10.0 * rand(),
                 v: 0.0,
                 depth: 1.0,
                 conic,
-                opacity: 0.003 + rand(),
+                opacity,
+                support: support_power(opacity),
                 extent: [0.0; 2],
             };
             for row in -25..=25 {
