@@ -25,8 +25,8 @@ fn tiny_config() -> TrainingConfig {
 fn trained() -> &'static (PathBuf, PathBuf) {
     static RUN: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
     RUN.get_or_init(|| {
-        let cache = scratch("cache");
-        let run = scratch("run");
+        let cache = scratch("cache").keep();
+        let run = scratch("run").keep();
         let data =
             prism_synth::ensure_synthetic_dataset_in(&cache, &tiny_config().data, false).unwrap();
         let options = RunOptions::new(&run, data, prism_core::BackendKind::Ndarray);

@@ -323,9 +323,8 @@ mod tests {
 
     #[test]
     fn a_stored_config_from_before_a_loss_term_reads_it_as_off() {
-        let dir = std::env::temp_dir().join(format!("prism-config-stored-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("config.toml");
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("config.toml");
         // A run of the small config, stored before `L_spread` and `L_centres` existed.
         let small = std::fs::read_to_string(configs_dir().join("small.toml")).unwrap();
         let old: String = small
@@ -344,7 +343,6 @@ mod tests {
         std::fs::write(&path, old.replace("warmup_steps", "warmup_stepz")).unwrap();
         let err = TrainingConfig::load_stored(&path).unwrap_err().to_string();
         assert!(err.contains("warmup_steps"), "{err}");
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

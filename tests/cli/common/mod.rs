@@ -6,8 +6,9 @@
 //! - outcomes: [`output`] (whatever the exit status), [`success`] (asserts exit 0) and
 //!   [`failure`] (asserts the one-line `error: ` the binary prints on bad input); [`stdout`],
 //!   [`stderr`] and [`text`] of an output;
-//! - files: [`scratch`] (a fresh folder per test), [`s`] (a path as an argument), [`cache`]
-//!   (this process's dataset cache, holding one synthetic dataset), [`copy_dir`];
+//! - files: [`scratch`] (a fresh folder per test, removed when it passes), [`s`] (a path as an
+//!   argument), [`cache`] (this process's dataset cache, holding one synthetic dataset),
+//!   [`copy_dir`];
 //! - devices: `wgpu_device` (with the `wgpu` feature: the adapter, or a skip, or a failure
 //!   under `PRISM_REQUIRE_WGPU`), and [`device_shared`] / [`device_alone`], the wgpu device's
 //!   lock.
@@ -116,20 +117,77 @@ pub fn text(out: &Output) -> String {
     stdout(out) + &stderr(out)
 }
 
-/// A fresh, empty scratch folder for one test (`prism-CRATE-PID-N-TEST` in the system's temporary
-/// folder), whatever an earlier run left there removed first.
-pub fn scratch(test: &str) -> PathBuf {
+/// A fresh, empty scratch folder for one test, `N-TEST` in this process's folder (see
+/// [`process_root`]). It is removed when the test ends, and kept when the test fails, so that
+/// what it wrote can be read; the next run of this test binary removes it then.
+pub fn scratch(test: &str) -> Scratch {
     // Numbered: the tests of this binary run side by side, and two may pick the same name.
     static NEXT: AtomicUsize = AtomicUsize::new(0);
-    let dir = std::env::temp_dir().join(format!(
-        "prism-{}-{}-{}-{test}",
-        env!("CARGO_CRATE_NAME"),
-        std::process::id(),
-        NEXT.fetch_add(1, Ordering::Relaxed)
-    ));
-    let _ = std::fs::remove_dir_all(&dir);
+    let dir = process_root().join(format!("{}-{test}", NEXT.fetch_add(1, Ordering::Relaxed)));
     std::fs::create_dir_all(&dir).unwrap();
-    dir
+    Scratch(dir)
+}
+
+/// A test's scratch folder ([`scratch`]): a path that removes its folder when dropped, unless
+/// the thread is panicking (a failed assertion keeps the test's files).
+pub struct Scratch(PathBuf);
+
+impl Scratch {
+    /// The folder, kept past this value: for folders the whole process shares, which the next
+    /// run of the test binary removes with [`process_root`]'s sweep.
+    pub fn keep(self) -> PathBuf {
+        let dir = self.0.clone();
+        std::mem::forget(self);
+        dir
+    }
+}
+
+impl std::ops::Deref for Scratch {
+    type Target = Path;
+
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<Path> for Scratch {
+    fn as_ref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        if !std::thread::panicking() {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+}
+
+/// This process's folder of scratch folders, `prism-CRATE-PID` in the system's temporary
+/// folder. Made on first use, which also removes the folders that earlier runs of this test
+/// binary left (a failed test's, the shared cache): those whose process no longer runs
+/// (Linux; elsewhere they stay).
+pub fn process_root() -> &'static Path {
+    static ROOT: OnceLock<PathBuf> = OnceLock::new();
+    ROOT.get_or_init(|| {
+        let prefix = format!("prism-{}-", env!("CARGO_CRATE_NAME"));
+        let temp = std::env::temp_dir();
+        let earlier = std::fs::read_dir(&temp).into_iter().flatten().flatten();
+        for entry in earlier {
+            let name = entry.file_name();
+            let pid = name.to_str().and_then(|n| n.strip_prefix(&prefix));
+            let ended = pid.is_some_and(|pid| {
+                pid.parse::<u32>().is_ok() && !Path::new("/proc").join(pid).exists()
+            });
+            if ended && Path::new("/proc/self").exists() {
+                let _ = std::fs::remove_dir_all(entry.path());
+            }
+        }
+        let root = temp.join(format!("{prefix}{}", std::process::id()));
+        std::fs::create_dir_all(&root).unwrap();
+        root
+    })
 }
 
 /// configs/tiny.toml at 32 px (LPIPS's minimum is 31) on 4 synthetic subjects of 32 px, 1 held
@@ -153,7 +211,7 @@ pub fn tiny_at_32px() -> prism_train::TrainingConfig {
 /// environment is never changed: its tests run side by side.
 pub fn cache_dir() -> PathBuf {
     static CACHE: OnceLock<PathBuf> = OnceLock::new();
-    CACHE.get_or_init(|| scratch("cache")).clone()
+    CACHE.get_or_init(|| scratch("cache").keep()).clone()
 }
 
 /// [`cache_dir`], holding the synthetic dataset `data` describes (synthesised by the first
