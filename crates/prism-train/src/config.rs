@@ -95,6 +95,27 @@ fn read_config(path: &Path) -> Result<String> {
     })
 }
 
+/// The first setting of `text` (as `section.field`, or a whole `section`) that `config`, parsed
+/// from it, does not have: serde passes over fields it does not know, so a setting this version
+/// lacks (one from another version, or a misspelt extra line) would otherwise be dropped
+/// without a word.
+fn unknown_key(text: &str, config: &TrainingConfig) -> Option<String> {
+    let written: toml::Table = text.parse().ok()?;
+    let known = toml::Table::try_from(config).expect("a training config serialises");
+    for (section, value) in &written {
+        let Some(known_section) = known.get(section) else {
+            return Some(section.clone());
+        };
+        if let (toml::Value::Table(fields), toml::Value::Table(known_fields)) =
+            (value, known_section)
+            && let Some(field) = fields.keys().find(|f| !known_fields.contains_key(*f))
+        {
+            return Some(format!("{section}.{field}"));
+        }
+    }
+    None
+}
+
 /// `text` with every loss weight that is 0 in the paper's objective and absent from its
 /// `[losses]` section written in as 0; `text` itself when nothing is absent or it does not
 /// parse (then [`TrainingConfig::parse`] reports it, with its line).
@@ -129,6 +150,22 @@ impl TrainingConfig {
     /// section), [`TrainError::Model`] for an invalid `[model]` / `[distill]`,
     /// [`TrainError::InvalidConfig`] for an invalid value of the other sections.
     pub fn parse(text: &str, origin: &Path) -> Result<Self> {
+        let config = Self::parse_known(text, origin)?;
+        match unknown_key(text, &config) {
+            Some(key) => Err(TrainError::ParseConfig {
+                path: origin.to_path_buf(),
+                message: format!(
+                    "unknown setting `{key}`: this version has no such field (misspelt, or \
+                     from another version?)"
+                ),
+            }),
+            None => Ok(config),
+        }
+    }
+
+    /// [`TrainingConfig::parse`] without the check for unknown settings: what a stored config
+    /// may hold from a version that had more.
+    fn parse_known(text: &str, origin: &Path) -> Result<Self> {
         let model = prism_model::parse_config(text, origin)?;
         let own: OwnSections = toml::from_str(text).map_err(|err| TrainError::ParseConfig {
             path: origin.to_path_buf(),
@@ -164,13 +201,14 @@ impl TrainingConfig {
     /// Reads the config that a run folder or checkpoint stored (see [`TrainingConfig::load`]).
     /// A run written before one of the loss terms beyond the paper existed lacks that term's
     /// weight: the term was not in its objective, so its weight reads as 0 (the paper config's
-    /// value for every such term). Every other missing field is an error, as in a config file.
+    /// value for every such term). Every other missing field is an error, as in a config file;
+    /// a setting this version does not know is passed over.
     ///
     /// # Errors
     /// As [`TrainingConfig::load`].
     pub fn load_stored(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        Self::parse(&with_absent_terms_off(&read_config(path)?), path)
+        Self::parse_known(&with_absent_terms_off(&read_config(path)?), path)
     }
 
     /// The config as TOML text (what a run folder and its checkpoints store).
@@ -343,6 +381,29 @@ mod tests {
         std::fs::write(&path, old.replace("warmup_steps", "warmup_stepz")).unwrap();
         let err = TrainingConfig::load_stored(&path).unwrap_err().to_string();
         assert!(err.contains("warmup_steps"), "{err}");
+    }
+
+    #[test]
+    fn unknown_settings_are_refused_in_a_file_and_passed_over_in_a_stored_config() {
+        let text = tiny_text();
+        for (extra, key) in [
+            ("[losses]\ngs_gradient = 10.0\n", "`losses.gs_gradient`"),
+            ("[model]\nskip_blocks = 2\n", "`model.skip_blocks`"),
+            ("[augment]\nflip = true\n", "`augment`"),
+        ] {
+            let section = &extra[..extra.find('\n').unwrap() + 1];
+            let written = match text.contains(section) {
+                true => text.replacen(section, extra, 1),
+                false => format!("{text}\n{extra}"),
+            };
+            let err = parse(&written).unwrap_err().to_string();
+            assert!(err.starts_with("test.toml") && err.contains(key), "{err}");
+            let dir = tempfile::tempdir().unwrap();
+            let path = dir.path().join("config.toml");
+            std::fs::write(&path, &written).unwrap();
+            let stored = TrainingConfig::load_stored(&path).unwrap();
+            assert_eq!(stored.to_toml(), parse(&text).unwrap().to_toml());
+        }
     }
 
     #[test]
