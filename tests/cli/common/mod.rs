@@ -173,21 +173,28 @@ pub fn process_root() -> &'static Path {
     ROOT.get_or_init(|| {
         let prefix = format!("prism-{}-", env!("CARGO_CRATE_NAME"));
         let temp = std::env::temp_dir();
-        let earlier = std::fs::read_dir(&temp).into_iter().flatten().flatten();
-        for entry in earlier {
-            let name = entry.file_name();
-            let pid = name.to_str().and_then(|n| n.strip_prefix(&prefix));
-            let ended = pid.is_some_and(|pid| {
-                pid.parse::<u32>().is_ok() && !Path::new("/proc").join(pid).exists()
-            });
-            if ended && Path::new("/proc/self").exists() {
-                let _ = std::fs::remove_dir_all(entry.path());
-            }
+        // Without `/proc`, whether a process still runs is not known: nothing is removed.
+        if Path::new("/proc/self").exists() {
+            remove_ended_roots(&temp, &prefix);
         }
         let root = temp.join(format!("{prefix}{}", std::process::id()));
         std::fs::create_dir_all(&root).unwrap();
         root
     })
+}
+
+/// Removes the folders `PREFIX + PID` in `temp` whose process no longer runs (`/proc/PID`).
+fn remove_ended_roots(temp: &Path, prefix: &str) {
+    for entry in std::fs::read_dir(temp).into_iter().flatten().flatten() {
+        let name = entry.file_name();
+        let pid = name.to_str().and_then(|n| n.strip_prefix(prefix));
+        let ended = pid.is_some_and(|pid| {
+            pid.parse::<u32>().is_ok() && !Path::new("/proc").join(pid).exists()
+        });
+        if ended {
+            let _ = std::fs::remove_dir_all(entry.path());
+        }
+    }
 }
 
 /// configs/tiny.toml at 32 px (LPIPS's minimum is 31) on 4 synthetic subjects of 32 px, 1 held
