@@ -105,7 +105,6 @@ fn bench_times_teacher_student_linear_and_the_training_step() {
     // px do (0.9 and 3.8 MB).
     assert!(peak(5) > peak(3), "64 px {} vs 16 px {}", peak(5), peak(3));
     assert!(stdout.contains("train_step"), "{stdout}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -129,7 +128,6 @@ fn bench_rejects_a_resolution_that_is_not_a_multiple_of_the_patch() {
         "{stderr}"
     );
     assert!(!stderr.contains("panicked"), "{stderr}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -139,7 +137,6 @@ fn bench_needs_a_config_or_a_subcommand() {
     assert!(!out.status.success());
     let stderr = stderr(&out);
     assert!(stderr.contains("--config"), "{stderr}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `scripts/peer/backbone.toml` must stay a valid config with the shapes that

@@ -207,5 +207,4 @@ fn convert_then_evaluate_then_train_from_the_converted_backbone() {
         .find(|v| v.get("lr_heads").is_some())
         .expect("a step line");
     assert_eq!(step["lr_heads"].as_f64(), Some(1e-2));
-    let _ = std::fs::remove_dir_all(&dir);
 }

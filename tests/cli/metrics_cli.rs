@@ -120,7 +120,6 @@ fn folder_json_scores_images_by_name_and_averages() {
         err.contains("extra.png") && err.contains("counterpart"),
         "{err}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -153,7 +152,6 @@ fn a_file_that_is_not_an_image_is_an_error() {
         err.contains("fake.png") && err.contains("not a readable image"),
         "{err}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]

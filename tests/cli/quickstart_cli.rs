@@ -152,7 +152,6 @@ fn quickstart_fast_runs_end_to_end() {
         (centre - PERSON_CENTRE_Y).abs() < 0.02,
         "mean person centre {centre}"
     );
-    let _ = std::fs::remove_dir_all(&root);
 }
 
 /// The phase table is printed with every phase, and its JSON holds non-negative seconds that

@@ -85,7 +85,6 @@ fn renders_a_ply_file_into_a_png() {
     let out_flex = dir.join("flex.png");
     success(render(&ply, &cam, &out_flex, &["--background", "0,0,1"]));
     assert_eq!(image::open(&out_flex).unwrap().to_rgb8(), image);
-    std::fs::remove_dir_all(dir).unwrap();
 }
 
 /// Runs `render`, which must fail with one line (exit status 1, `error: `) naming `needle`,
@@ -112,7 +111,6 @@ fn a_bad_background_is_a_clear_error() {
             &out,
         );
     }
-    std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]
@@ -131,7 +129,6 @@ fn missing_or_broken_inputs_are_errors_naming_the_file() {
     // An output directory that does not exist: nothing is left behind.
     let nowhere = dir.join("no/such/out.png");
     assert_fails(render(&ply, &cam, &nowhere, &[]), "out.png", &nowhere);
-    std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]

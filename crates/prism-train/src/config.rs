@@ -146,8 +146,8 @@ impl TrainingConfig {
     /// the text in errors.
     ///
     /// # Errors
-    /// [`TrainError::ParseConfig`] for bad TOML or a missing / mistyped field (with its line and
-    /// section), [`TrainError::Model`] for an invalid `[model]` / `[distill]`,
+    /// [`TrainError::ParseConfig`] for bad TOML, a missing / mistyped field (with its line and
+    /// section) or a setting this version does not have, [`TrainError::Model`] for an invalid `[model]` / `[distill]`,
     /// [`TrainError::InvalidConfig`] for an invalid value of the other sections.
     pub fn parse(text: &str, origin: &Path) -> Result<Self> {
         let config = Self::parse_known(text, origin)?;
