@@ -210,8 +210,13 @@ fn assert_same_updates(
 /// 2e-2: a planted factor of 2 in a gradient gives 1); the step's geometry operations read
 /// from the host on flex (so the counter is live), never on wgpu, nor in a step of the small
 /// config. On wgpu, the step through prism's flash kernels (their backward pass included)
-/// against the default one (matmul-softmax-matmul): the same loss and updates, yet different
-/// in some bit, or the flash kernels did not run.
+/// against the default one (matmul-softmax-matmul): the same loss and updates (within 1e-2),
+/// yet different in some bit, or the flash kernels did not run.
+///
+/// At initialisation the attention's projections move by about 1e-6, sums of far larger
+/// terms that nearly cancel, so f32 rounding reaches 1e-4 of such an update on one Vulkan
+/// driver and 1.7e-3 on another (whose vector width orders the sums differently); a wrong
+/// gradient (a factor, a lost block) is off by a good part of 1.
 #[test]
 #[cfg_attr(not(wgpu_adapter), ignore = "no wgpu adapter on this machine")]
 fn one_training_step_on_wgpu_matches_flex_through_either_attention_without_geometry_reads() {
@@ -260,7 +265,7 @@ fn one_training_step_on_wgpu_matches_flex_through_either_attention_without_geome
         &params_flash,
         &params_wgpu,
         &before,
-        1e-3,
+        1e-2,
     );
     assert!(params_flash != params_wgpu, "the flash kernels did not run");
 
