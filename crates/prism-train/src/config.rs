@@ -147,8 +147,9 @@ impl TrainingConfig {
     ///
     /// # Errors
     /// [`TrainError::ParseConfig`] for bad TOML, a missing / mistyped field (with its line and
-    /// section) or a setting this version does not have, [`TrainError::Model`] for an invalid `[model]` / `[distill]`,
-    /// [`TrainError::InvalidConfig`] for an invalid value of the other sections.
+    /// section) or a setting this version does not have, [`TrainError::Model`] for an invalid
+    /// `[model]` / `[distill]`, [`TrainError::InvalidConfig`] for an invalid value of the other
+    /// sections.
     pub fn parse(text: &str, origin: &Path) -> Result<Self> {
         let config = Self::parse_known(text, origin)?;
         match unknown_key(text, &config) {
@@ -392,9 +393,10 @@ mod tests {
             ("[augment]\nflip = true\n", "`augment`"),
         ] {
             let section = &extra[..extra.find('\n').unwrap() + 1];
-            let written = match text.contains(section) {
-                true => text.replacen(section, extra, 1),
-                false => format!("{text}\n{extra}"),
+            let written = if text.contains(section) {
+                text.replacen(section, extra, 1)
+            } else {
+                format!("{text}\n{extra}")
             };
             let err = parse(&written).unwrap_err().to_string();
             assert!(err.starts_with("test.toml") && err.contains(key), "{err}");
