@@ -3,10 +3,11 @@
 //! Both operands are rounded to bf16 (to nearest, ties to even) and their products summed in
 //! f32, as AVX512-BF16's `vdpbf16ps` computes them: the product of two bf16 values is exact
 //! in f32, so the result differs from the f32 product of the rounded operands only in the
-//! order of the f32 sums. Two kernels compute it, chosen at run time ([`Bf16Kernel::chosen`]):
-//! `vdpbf16ps` where the CPU has AVX512-BF16 (two products per f32 lane and instruction, half
-//! the bytes per operand), and elsewhere the rounded operands' f32 product through `gemm`,
-//! which gives the same values at f32's speed.
+//! order of the f32 sums. Three kernels compute it, chosen at run time
+//! ([`Bf16Kernel::chosen`]): AMX's `tdpbf16ps` on tiles where the CPU has AMX-BF16 and Linux
+//! grants the tiles, `vdpbf16ps` where it has AVX512-BF16 (two products per f32 lane and
+//! instruction, half the bytes per operand), and elsewhere the rounded operands' f32 product
+//! through `gemm`, which gives the same values at f32's speed.
 
 use std::sync::OnceLock;
 
@@ -18,6 +19,9 @@ use crate::matrix::View;
 /// The code that computes a product of bf16 operands.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Bf16Kernel {
+    /// AMX-BF16's `tdpbf16ps` on 16 x 16 tiles of f32 sums (the packing uses AVX512-BF16,
+    /// which every AMX-BF16 CPU has).
+    Amx,
     /// AVX512-BF16's `vdpbf16ps` (with AVX512-F and -BW for the packing).
     Avx512Bf16,
     /// The operands rounded to bf16 and multiplied as f32 with `gemm`: the same values, at
@@ -28,14 +32,10 @@ pub enum Bf16Kernel {
 impl Bf16Kernel {
     /// The fastest kernel this CPU runs.
     pub fn detect() -> Self {
-        #[cfg(target_arch = "x86_64")]
-        if is_x86_feature_detected!("avx512f")
-            && is_x86_feature_detected!("avx512bw")
-            && is_x86_feature_detected!("avx512bf16")
-        {
-            return Self::Avx512Bf16;
-        }
-        Self::Rounded
+        [Self::Amx, Self::Avx512Bf16]
+            .into_iter()
+            .find(|k| k.runs_here())
+            .unwrap_or(Self::Rounded)
     }
 
     /// [`Bf16Kernel::detect`], once per process; the first call on a CPU without AVX512-BF16
@@ -54,9 +54,22 @@ impl Bf16Kernel {
         })
     }
 
-    /// Whether this CPU runs the kernel.
+    /// Whether this CPU (and, for AMX, the operating system) runs the kernel.
     pub fn runs_here(self) -> bool {
-        self == Self::Rounded || Self::detect() == self
+        #[cfg(target_arch = "x86_64")]
+        let avx512_bf16 = is_x86_feature_detected!("avx512f")
+            && is_x86_feature_detected!("avx512bw")
+            && is_x86_feature_detected!("avx512bf16");
+        #[cfg(not(target_arch = "x86_64"))]
+        let avx512_bf16 = false;
+        match self {
+            #[cfg(target_arch = "x86_64")]
+            Self::Amx => avx512_bf16 && amx::available(),
+            #[cfg(not(target_arch = "x86_64"))]
+            Self::Amx => false,
+            Self::Avx512Bf16 => avx512_bf16,
+            Self::Rounded => true,
+        }
     }
 }
 
@@ -89,9 +102,11 @@ pub(crate) fn matmul(kernel: Bf16Kernel, a: View<'_>, b: View<'_>) -> Vec<f32> {
     );
     match kernel {
         #[cfg(target_arch = "x86_64")]
+        Bf16Kernel::Amx => amx::matmul(a, b),
+        #[cfg(target_arch = "x86_64")]
         Bf16Kernel::Avx512Bf16 => avx512::matmul(a, b),
         #[cfg(not(target_arch = "x86_64"))]
-        Bf16Kernel::Avx512Bf16 => unreachable!("AVX512-BF16 runs on x86_64 only"),
+        Bf16Kernel::Amx | Bf16Kernel::Avx512Bf16 => unreachable!("runs on x86_64 only"),
         Bf16Kernel::Rounded => rounded(a, b),
     }
 }
@@ -138,6 +153,9 @@ fn rounded(a: View<'_>, b: View<'_>) -> Vec<f32> {
 }
 
 #[cfg(target_arch = "x86_64")]
+mod amx;
+
+#[cfg(target_arch = "x86_64")]
 mod avx512 {
     //! The `vdpbf16ps` kernel, blocked in the manner of GotoBLAS: `b` is packed in panels of
     //! `NR` columns per block of `KC` inner values, `a` in strips of `MR` rows per task, and
@@ -152,7 +170,7 @@ mod avx512 {
     /// Rows of a register tile.
     const MR: usize = 12;
     /// Columns of a register tile: two vectors of 16 f32.
-    const NR: usize = 32;
+    pub(super) const NR: usize = 32;
     /// Inner-dimension values per packed block (even, so pairs never straddle two blocks).
     const KC: usize = 384;
     /// The most rows one task takes (a multiple of `MR`).
@@ -207,7 +225,7 @@ mod avx512 {
     /// `out[q] = pair(row[2q], row[2q + 1])`: a contiguous run as the words of its pairs (an
     /// odd length's last word has a zero high half).
     #[target_feature(enable = "avx512f,avx512bw,avx512bf16")]
-    fn convert(row: &[f32], out: &mut [u32]) {
+    pub(super) fn convert(row: &[f32], out: &mut [u32]) {
         assert_eq!(out.len(), row.len().div_ceil(2));
         // SAFETY: the loads are masked to `row`'s values, the stores to `out`'s words.
         unsafe {
@@ -234,19 +252,24 @@ mod avx512 {
         RowMajor,
     }
 
-    /// `b[k0..k0 + kc, ..]` as panels of `NR` columns: panel `p`, pair `q`, column `j` at
-    /// `(p * pairs + q) * NR + j`, zero beyond the matrix.
-    fn pack_b(b: View<'_>, k0: usize, kc: usize) -> Vec<u32> {
-        let pairs = kc.div_ceil(2);
+    /// `b[k0..k0 + kc, ..]` as panels of `NR` columns and `pairs >= kc / 2` pairs: panel `p`,
+    /// pair `q`, column `j` at `(p * pairs + q) * NR + j`, zero beyond the matrix.
+    pub(super) fn pack_b(b: View<'_>, k0: usize, kc: usize, pairs: usize) -> Vec<u32> {
+        let used = kc.div_ceil(2);
+        assert!(
+            pairs >= used,
+            "pack_b: {pairs} pairs cannot hold {kc} values"
+        );
         let mut out = vec![0u32; b.cols.div_ceil(NR) * pairs * NR];
         out.par_chunks_mut(pairs * NR)
             .enumerate()
             .for_each_init(Vec::new, |column, (p, panel)| {
+                let panel = &mut panel[..used * NR];
                 let (c0, cols) = (p * NR, NR.min(b.cols - p * NR));
                 if b.row_stride == 1 {
                     // Contiguous columns (a transposed row-major matrix): each column's pairs
                     // converted in a run, then set into the panel's rows.
-                    column.resize(pairs, 0);
+                    column.resize(used, 0);
                     for j in 0..cols {
                         let run = &b.data[(c0 + j) * b.col_stride + k0..][..kc];
                         // SAFETY: `matmul`'s caller checked the CPU's features.
@@ -264,7 +287,7 @@ mod avx512 {
 
     /// Word `(q, j)` at `q * stride + j` of `out`, for `j < width`: rows `k0 + 2q` and
     /// `k0 + 2q + 1` of `m` (the second zero past `k0 + kc`) at column `c0 + j`, as a pair.
-    fn pair_rows(
+    pub(super) fn pair_rows(
         m: View<'_>,
         k0: usize,
         kc: usize,
@@ -331,7 +354,7 @@ mod avx512 {
         for k0 in (0..k).step_by(KC) {
             let kc = KC.min(k - k0);
             let pairs = kc.div_ceil(2);
-            let bp = pack_b(b, k0, kc);
+            let bp = pack_b(b, k0, kc, pairs);
             c.par_chunks_mut(mc * n)
                 .enumerate()
                 .for_each_init(Vec::new, |ap, (t, block)| {
@@ -461,10 +484,11 @@ mod tests {
     /// exact products.
     #[test]
     fn kernels_match_the_rounded_product() {
-        let kernels: Vec<Bf16Kernel> = [Bf16Kernel::Avx512Bf16, Bf16Kernel::Rounded]
-            .into_iter()
-            .filter(|k| k.runs_here())
-            .collect();
+        let kernels: Vec<Bf16Kernel> =
+            [Bf16Kernel::Amx, Bf16Kernel::Avx512Bf16, Bf16Kernel::Rounded]
+                .into_iter()
+                .filter(|k| k.runs_here())
+                .collect();
         eprintln!("kernels run here: {kernels:?}");
         for (m, k, n) in [
             (1, 1, 1),

@@ -29,7 +29,13 @@ pub fn exp(x: f32) -> f32 {
     p = p * r + 1.666_666_5e-1;
     p = p * r + 0.5;
     let e_r = p * r * r + r + 1.0;
-    let two_n = f32::from_bits(((n as i32 + 127) << 23) as u32);
+    // `2^n` from the exponent bits. `n + 127` lies in [1, 254]; added to 2^23, it is the low
+    // bits of the sum's mantissa. This stays in vector registers, where `n as i32` would not:
+    // Rust's saturating float-to-int cast is compiled lane by lane (a scalar convert, compare
+    // and select for each of the 16 lanes), which took a third of the attention's time on an
+    // Intel Xeon (BENCHMARKS, issue 43).
+    let biased = (n + (127.0 + 8_388_608.0)).to_bits() & 0xff;
+    let two_n = f32::from_bits(biased << 23);
     e_r * two_n
 }
 
