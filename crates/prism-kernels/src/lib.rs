@@ -8,8 +8,9 @@
 //! attention runs block by block over the queries with `gemm` (FlashAttention's scheme).
 //!
 //! `--precision bf16` on the CPU runs the blocks' matrix products through [`matmul_bf16`]:
-//! operands rounded to bf16, products summed in f32, with AVX512-BF16's `vdpbf16ps` where the
-//! CPU has it ([`Bf16Kernel`], chosen at run time), forward and backward.
+//! operands rounded to bf16, products summed in f32, with AMX's tiles or AVX512-BF16's
+//! `vdpbf16ps` where the CPU has them ([`Bf16Kernel`], chosen at run time), forward and
+//! backward.
 //!
 //! On the GPU backends (features `wgpu`, `cuda`) softmax attention can run flash-attention
 //! kernels in CubeCL (module `device`): forward and backward without the `T x T` scores, in
