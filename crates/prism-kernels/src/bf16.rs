@@ -111,6 +111,15 @@ pub(crate) fn matmul(kernel: Bf16Kernel, a: View<'_>, b: View<'_>) -> Vec<f32> {
     }
 }
 
+/// Rows of `c` per task of a blocked kernel: enough tasks for every thread twice over, in whole
+/// strips of `strip` rows, at most `most` rows.
+#[cfg(target_arch = "x86_64")]
+fn rows_per_task(m: usize, strip: usize, most: usize) -> usize {
+    m.div_ceil(2 * rayon::current_num_threads())
+        .next_multiple_of(strip)
+        .min(most)
+}
+
 /// The rounded operands' f32 product through `gemm`.
 fn rounded(a: View<'_>, b: View<'_>) -> Vec<f32> {
     let round = |v: View<'_>| -> Vec<f32> {
@@ -346,11 +355,7 @@ mod avx512 {
         let (m, k, n) = (a.rows, a.cols, b.cols);
         let mut c = vec![0.0f32; m * n];
         let panels = n.div_ceil(NR);
-        // Enough tasks for every thread twice over, in whole strips.
-        let mc = m
-            .div_ceil(2 * rayon::current_num_threads())
-            .next_multiple_of(MR)
-            .min(MC);
+        let mc = super::rows_per_task(m, MR, MC);
         for k0 in (0..k).step_by(KC) {
             let kc = KC.min(k - k0);
             let pairs = kc.div_ceil(2);

@@ -102,10 +102,7 @@ pub(super) fn matmul(a: View<'_>, b: View<'_>) -> Vec<f32> {
     let (m, k, n) = (a.rows, a.cols, b.cols);
     let mut c = vec![0.0f32; m * n];
     let panels = n.div_ceil(NR);
-    let mc = m
-        .div_ceil(2 * rayon::current_num_threads())
-        .next_multiple_of(MR)
-        .min(MC);
+    let mc = super::rows_per_task(m, MR, MC);
     for k0 in (0..k).step_by(KC) {
         let kc = KC.min(k - k0);
         let pairs = kc.div_ceil(2).next_multiple_of(TILE);
