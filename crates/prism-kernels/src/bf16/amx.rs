@@ -39,6 +39,7 @@ pub(super) fn available() -> bool {
 
 /// Asks Linux for the tile data state (`arch_prctl(ARCH_REQ_XCOMP_PERM, XTILEDATA)`), once
 /// for the process; false where the kernel refuses or is too old.
+#[cfg(target_os = "linux")]
 fn enable() -> bool {
     const ARCH_REQ_XCOMP_PERM: libc::c_long = 0x1023;
     const XFEATURE_XTILEDATA: libc::c_long = 18;
@@ -50,6 +51,12 @@ fn enable() -> bool {
             XFEATURE_XTILEDATA,
         ) == 0
     }
+}
+
+/// Other systems: the tiles are not asked for, and the AVX-512 kernel runs.
+#[cfg(not(target_os = "linux"))]
+fn enable() -> bool {
+    false
 }
 
 /// The tile configuration (`ldtilecfg`'s 64 bytes): palette 1, tiles 0 to 7 of 16 rows of
