@@ -11,6 +11,7 @@ use gemm::{Parallelism, gemm};
 use multiversion::multiversion;
 use rayon::prelude::*;
 
+use crate::bf16::Bf16Kernel;
 use crate::math;
 use crate::matrix::View;
 
@@ -79,13 +80,115 @@ fn matmul(dst: &mut [f32], accumulate: bool, lhs: View<'_>, rhs: View<'_>, scale
 
 /// `(o, lse)`: `o = softmax(scale q k^T) v` and each query row's `log sum_j exp(scale q k_j)`.
 pub fn forward(q: &[f32], k: &[f32], v: &[f32], dims: Dims, scale: f32) -> (Vec<f32>, Vec<f32>) {
-    for (name, x) in [("q", q), ("k", k), ("v", v)] {
+    let (tokens, head_dim) = (dims.tokens, dims.head_dim);
+    each_block(
+        [q, k, v],
+        dims,
+        |h| h * dims.per_head()..(h + 1) * dims.per_head(),
+        // One score buffer per worker thread, reused by its blocks (gemm overwrites it).
+        || vec![0.0; BLOCK.min(tokens) * tokens],
+        |span, b, o, lse, p| {
+            let rows = lse.len();
+            let (k, v) = (&k[span.clone()], &v[span.clone()]);
+            let q = &q[span.start + b * BLOCK * head_dim..][..rows * head_dim];
+            let p = &mut p[..rows * tokens];
+            matmul(
+                p,
+                false,
+                View::rows(q, rows, head_dim),
+                View::transposed(k, head_dim, tokens),
+                scale,
+            );
+            softmax_rows(p, tokens, lse);
+            matmul(
+                o,
+                false,
+                View::rows(p, rows, tokens),
+                View::rows(v, tokens, head_dim),
+                1.0,
+            );
+        },
+    )
+}
+
+/// [`forward`] with the two products taking bf16 operands through `kernel`, the exponentials
+/// and their sums in f32. Only AMX's tiles have a path here ([`forward_amx`]); with the other
+/// kernels attention stays f32 ([`forward`]).
+pub fn forward_bf16(
+    kernel: Bf16Kernel,
+    q: &[f32],
+    k: &[f32],
+    v: &[f32],
+    dims: Dims,
+    scale: f32,
+) -> (Vec<f32>, Vec<f32>) {
+    match kernel {
+        #[cfg(target_arch = "x86_64")]
+        Bf16Kernel::Amx => forward_amx(q, k, v, dims, scale),
+        _ => forward(q, k, v, dims, scale),
+    }
+}
+
+/// [`forward`] on AMX's tiles: `q`, `k`, `v` and each row's exponentials `exp(scale (s -
+/// max s))` rounded to bf16, the products summed in f32, and the output rows divided by the
+/// exponentials' f32 sums. Each head's `k^T` and `v` are packed once for all its blocks.
+/// Panics unless the CPU runs [`Bf16Kernel::Amx`].
+#[cfg(target_arch = "x86_64")]
+fn forward_amx(q: &[f32], k: &[f32], v: &[f32], dims: Dims, scale: f32) -> (Vec<f32>, Vec<f32>) {
+    use crate::bf16::amx::{PackedA, PackedB, Tiles, product};
+    let (tokens, head_dim) = (dims.tokens, dims.head_dim);
+    each_block(
+        [q, k, v],
+        dims,
+        |h| {
+            let span = h * dims.per_head()..(h + 1) * dims.per_head();
+            let (k, v) = (&k[span.clone()], &v[span.clone()]);
+            let keys = PackedB::new(View::transposed(k, head_dim, tokens), 0, head_dim);
+            let values = PackedB::new(View::rows(v, tokens, head_dim), 0, tokens);
+            (span.start, keys, values)
+        },
+        || {
+            let scores = vec![0.0; BLOCK.min(tokens) * tokens];
+            (scores, PackedA::default(), [0.0f32; BLOCK])
+        },
+        |(start, keys, values), b, o, lse, (p, packed, inv)| {
+            let rows = lse.len();
+            let q = &q[start + b * BLOCK * head_dim..][..rows * head_dim];
+            let (p, inv) = (&mut p[..rows * tokens], &mut inv[..rows]);
+            let tiles = Tiles::configure();
+            packed.pack(View::rows(q, rows, head_dim), 0, rows, 0, head_dim);
+            product(&tiles, packed, keys, p, tokens, false);
+            exponentials(p, tokens, scale, lse, inv);
+            packed.pack(View::rows(p, rows, tokens), 0, rows, 0, tokens);
+            product(&tiles, packed, values, o, head_dim, false);
+            for (row, &inv) in o.chunks_exact_mut(head_dim).zip(inv.iter()) {
+                row.iter_mut().for_each(|x| *x *= inv);
+            }
+        },
+    )
+}
+
+/// The skeleton of the forward passes: checks the sizes, allocates `(o, lse)`, and runs
+/// `block(head's, b, o, lse, scratch)` on every block `b` of [`BLOCK`] query rows of every
+/// head in parallel, where `o` and `lse` are the block's rows, `head's` what `prepare(h)`
+/// made once for the head's blocks, and `scratch` a worker thread's, made by `scratch()`.
+fn each_block<H, S>(
+    inputs: [&[f32]; 3],
+    dims: Dims,
+    prepare: impl Fn(usize) -> H + Sync + Send,
+    scratch: impl Fn() -> S + Sync + Send,
+    block: impl Fn(&H, usize, &mut [f32], &mut [f32], &mut S) + Sync + Send,
+) -> (Vec<f32>, Vec<f32>)
+where
+    H: Sync,
+{
+    for (name, x) in ["q", "k", "v"].into_iter().zip(inputs) {
         dims.check(name, x.len());
     }
     let Dims {
         tokens, head_dim, ..
     } = dims;
-    let mut o = vec![0.0; q.len()];
+    let mut o = vec![0.0; dims.heads * dims.per_head()];
     let mut lse = vec![0.0; dims.heads * tokens];
     if o.is_empty() {
         return (o, lse);
@@ -94,54 +197,36 @@ pub fn forward(q: &[f32], k: &[f32], v: &[f32], dims: Dims, scale: f32) -> (Vec<
         .zip(lse.par_chunks_mut(tokens))
         .enumerate()
         .for_each(|(h, (o, lse))| {
-            let span = h * dims.per_head()..(h + 1) * dims.per_head();
-            let (q, k, v) = (&q[span.clone()], &k[span.clone()], &v[span]);
-            // One score buffer per worker thread, reused by its blocks (gemm overwrites it).
+            let head = prepare(h);
             o.par_chunks_mut(BLOCK * head_dim)
                 .zip(lse.par_chunks_mut(BLOCK))
                 .enumerate()
-                .for_each_init(
-                    || vec![0.0; BLOCK.min(tokens) * tokens],
-                    |p, (b, (o, lse))| {
-                        let rows = lse.len();
-                        let q = &q[b * BLOCK * head_dim..][..rows * head_dim];
-                        let p = &mut p[..rows * tokens];
-                        matmul(
-                            p,
-                            false,
-                            View::rows(q, rows, head_dim),
-                            View::transposed(k, head_dim, tokens),
-                            scale,
-                        );
-                        softmax_rows(p, tokens, lse);
-                        matmul(
-                            o,
-                            false,
-                            View::rows(p, rows, tokens),
-                            View::rows(v, tokens, head_dim),
-                            1.0,
-                        );
-                    },
-                );
+                .for_each_init(&scratch, |s, (b, (o, lse))| block(&head, b, o, lse, s));
         });
     (o, lse)
 }
 
 /// Each row of `p` (rows of `len`) replaced by its softmax; `lse` gets the rows'
 /// log-sum-exp.
-#[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]
 fn softmax_rows(p: &mut [f32], len: usize, lse: &mut [f32]) {
-    for (row, lse) in p.chunks_exact_mut(len).zip(lse.iter_mut()) {
+    let mut inv = [0.0; BLOCK];
+    let inv = &mut inv[..lse.len()];
+    exponentials(p, len, 1.0, lse, inv);
+    for (row, &inv) in p.chunks_exact_mut(len).zip(inv.iter()) {
+        row.iter_mut().for_each(|x| *x *= inv);
+    }
+}
+
+/// Each row `s` of `p` (rows of `len`) replaced by `exp(scale (s - max s))`; `lse` gets the
+/// rows' `log sum exp(scale s)` and `inv` one over the sums of the new rows (`scale > 0`).
+#[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]
+fn exponentials(p: &mut [f32], len: usize, scale: f32, lse: &mut [f32], inv: &mut [f32]) {
+    for ((row, lse), inv) in p.chunks_exact_mut(len).zip(lse.iter_mut()).zip(inv) {
         let m = math::max(row);
-        for x in row.iter_mut() {
-            *x = math::exp(*x - m);
-        }
-        let sum = math::sum_map(row, |x| x);
-        let inv = 1.0 / sum;
-        for x in row.iter_mut() {
-            *x *= inv;
-        }
-        *lse = m + sum.ln();
+        let shift = -scale * m;
+        let sum = math::map_sum(row, |x| math::exp(x.mul_add(scale, shift)));
+        *inv = 1.0 / sum;
+        *lse = scale * m + sum.ln();
     }
 }
 
@@ -251,6 +336,104 @@ fn score_gradient(p: &[f32], ds: &mut [f32], o: &[f32], grad: &[f32], head_dim: 
         let d = math::sum_zip(g, o, |g, o| g * o);
         for (ds, &p) in ds.iter_mut().zip(p) {
             *ds = scale * p * (*ds - d);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Values in [-2, 2) from a fixed linear congruential sequence.
+    fn values(n: usize, seed: u64) -> Vec<f32> {
+        let mut s = seed;
+        (0..n)
+            .map(|_| {
+                s = s
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                (s >> 40) as f32 / (1u64 << 22) as f32 - 2.0
+            })
+            .collect()
+    }
+
+    /// `(o, lse)` in f64 with bf16's roundings where the bf16 path makes them: `q`, `k`, `v`
+    /// and each row's exponentials `exp(scale (s - max s))` rounded, the rest exact.
+    fn reference_bf16(q: &[f32], k: &[f32], v: &[f32], dims: Dims, scale: f32) -> Vec<f64> {
+        let r = |x: f32| crate::bf16::round_bf16(x) as f64;
+        let Dims {
+            heads,
+            tokens,
+            head_dim,
+        } = dims;
+        let mut out = Vec::new();
+        for h in 0..heads {
+            let at = |x: &[f32], t: usize, d: usize| r(x[(h * tokens + t) * head_dim + d]);
+            for i in 0..tokens {
+                let s: Vec<f64> = (0..tokens)
+                    .map(|j| (0..head_dim).map(|d| at(q, i, d) * at(k, j, d)).sum())
+                    .collect();
+                let m = s.iter().cloned().fold(f64::MIN, f64::max);
+                let e: Vec<f64> = s.iter().map(|s| (scale as f64 * (s - m)).exp()).collect();
+                let sum: f64 = e.iter().sum();
+                for d in 0..head_dim {
+                    let num: f64 = (0..tokens).map(|j| r(e[j] as f32) * at(v, j, d)).sum();
+                    out.push(num / sum);
+                }
+                out.push(scale as f64 * m + sum.ln());
+            }
+        }
+        out
+    }
+
+    /// The bf16 forward on every kernel this CPU runs: AMX against the rounded reference (to
+    /// within one bf16 step of an exponential that rounds the other way), on sizes that
+    /// leave partial tiles, strips, panels and blocks; the other kernels' f32 path against the
+    /// f32 forward exactly.
+    #[test]
+    fn bf16_forward_matches_its_rounded_reference() {
+        for (heads, tokens, head_dim) in [(1, 1, 1), (2, 45, 24), (1, 100, 64), (3, 130, 40)] {
+            let dims = Dims {
+                heads,
+                tokens,
+                head_dim,
+            };
+            let n = heads * tokens * head_dim;
+            let (q, k, v) = (values(n, 1), values(n, 2), values(n, 3));
+            let scale = 1.0 / (head_dim as f32).sqrt();
+            let f32_out = forward(&q, &k, &v, dims, scale);
+            for kernel in [Bf16Kernel::Amx, Bf16Kernel::Avx512Bf16, Bf16Kernel::Rounded] {
+                if !kernel.runs_here() {
+                    eprintln!("{kernel:?} does not run here");
+                    continue;
+                }
+                let (o, lse) = forward_bf16(kernel, &q, &k, &v, dims, scale);
+                if kernel != Bf16Kernel::Amx {
+                    assert_eq!((o, lse), f32_out, "{kernel:?} takes the f32 path");
+                    continue;
+                }
+                let want = reference_bf16(&q, &k, &v, dims, scale);
+                let got = o
+                    .chunks(head_dim)
+                    .zip(&lse)
+                    .flat_map(|(o, l)| o.iter().chain(std::iter::once(l)).map(|&x| x as f64));
+                let err = got
+                    .zip(&want)
+                    .map(|(g, w)| (g - w).abs())
+                    .fold(0.0, f64::max);
+                assert!(
+                    err < 2e-3,
+                    "AMX attention {heads} x {tokens} x {head_dim}: error {err}"
+                );
+                let f32_err = o
+                    .iter()
+                    .zip(&f32_out.0)
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f32::max);
+                eprintln!(
+                    "{heads} x {tokens} x {head_dim}: {err:e} from the reference, {f32_err:e} from f32"
+                );
+            }
         }
     }
 }

@@ -162,7 +162,7 @@ fn rounded(a: View<'_>, b: View<'_>) -> Vec<f32> {
 }
 
 #[cfg(target_arch = "x86_64")]
-mod amx;
+pub(crate) mod amx;
 
 #[cfg(target_arch = "x86_64")]
 mod avx512 {

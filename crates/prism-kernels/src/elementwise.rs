@@ -8,13 +8,9 @@ use crate::math;
 /// Elements per parallel task: large enough to amortise scheduling, small enough to balance.
 const CHUNK: usize = 1 << 14;
 
-/// `y = GELU(x)`.
-pub fn gelu(x: &[f32]) -> Vec<f32> {
-    let mut y = vec![0.0; x.len()];
-    y.par_chunks_mut(CHUNK)
-        .zip(x.par_chunks(CHUNK))
-        .for_each(|(y, x)| gelu_chunk(x, y));
-    y
+/// `x = GELU(x)` in place.
+pub fn gelu(x: &mut [f32]) {
+    x.par_chunks_mut(CHUNK).for_each(gelu_chunk);
 }
 
 /// `dx = grad * GELU'(x)`.
@@ -32,9 +28,9 @@ pub fn gelu_backward(x: &[f32], grad: &[f32]) -> Vec<f32> {
 }
 
 #[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]
-fn gelu_chunk(x: &[f32], y: &mut [f32]) {
-    for (y, &x) in y.iter_mut().zip(x) {
-        *y = math::gelu(x);
+fn gelu_chunk(x: &mut [f32]) {
+    for x in x.iter_mut() {
+        *x = math::gelu(*x);
     }
 }
 

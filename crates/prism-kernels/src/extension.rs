@@ -42,6 +42,14 @@ pub trait FusedOps: Backend {
         k: FloatTensor<Self>,
         v: FloatTensor<Self>,
     ) -> FloatTensor<Self>;
+    /// [`FusedOps::fused_attention`] with the two products' operands in bf16 where the CPU's
+    /// bf16 kernel has an attention path (AMX's tiles; see [`Bf16Kernel`]) and no gradient is
+    /// needed; under a gradient, the f32 kernels forward and backward.
+    fn fused_attention_bf16(
+        q: FloatTensor<Self>,
+        k: FloatTensor<Self>,
+        v: FloatTensor<Self>,
+    ) -> FloatTensor<Self>;
     /// `a b` for `a` of `[.., m, k]` and `b` of `[k, n]`, both rounded to bf16 and the
     /// products summed in f32 (see [`Bf16Kernel`]).
     fn fused_matmul_bf16(a: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self>;
@@ -49,8 +57,7 @@ pub trait FusedOps: Backend {
 
 /// GELU through the host kernel.
 fn gelu<B: HostTensors>(x: FloatTensor<B>) -> FloatTensor<B> {
-    let (shape, device) = (x.shape(), x.device());
-    B::tensor(elementwise::gelu(&B::values(x)), shape, &device)
+    B::update(x, elementwise::gelu)
 }
 
 /// `grad * GELU'(x)` through the host kernel.
@@ -108,15 +115,22 @@ fn attention_dims(q: &Shape, k: &Shape, v: &Shape) -> (Dims, f32) {
     (dims, 1.0 / (dims.head_dim as f32).sqrt())
 }
 
-/// `(o, lse)` through the host kernel.
+/// `(o, lse)` through the host kernel, its products in f32 or (`bf16`) through the chosen
+/// bf16 kernel.
 fn attention_forward<B: HostTensors>(
     q: FloatTensor<B>,
     k: FloatTensor<B>,
     v: FloatTensor<B>,
+    bf16: bool,
 ) -> (FloatTensor<B>, FloatTensor<B>) {
     let (shape, device) = (q.shape(), q.device());
     let (dims, scale) = attention_dims(&shape, &k.shape(), &v.shape());
-    let (o, lse) = attention::forward(&B::values(q), &B::values(k), &B::values(v), dims, scale);
+    let (q, k, v) = (B::values(q), B::values(k), B::values(v));
+    let (o, lse) = if bf16 {
+        attention::forward_bf16(Bf16Kernel::chosen(), &q, &k, &v, dims, scale)
+    } else {
+        attention::forward(&q, &k, &v, dims, scale)
+    };
     let lse_shape = Shape::new([shape[0], shape[1], shape[2]]);
     (
         B::tensor(o, shape, &device),
@@ -231,7 +245,15 @@ macro_rules! host_fused_ops {
                 k: FloatTensor<Self>,
                 v: FloatTensor<Self>,
             ) -> FloatTensor<Self> {
-                attention_forward::<Self>(q, k, v).0
+                attention_forward::<Self>(q, k, v, false).0
+            }
+
+            fn fused_attention_bf16(
+                q: FloatTensor<Self>,
+                k: FloatTensor<Self>,
+                v: FloatTensor<Self>,
+            ) -> FloatTensor<Self> {
+                attention_forward::<Self>(q, k, v, true).0
             }
 
             fn fused_matmul_bf16(a: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self> {
@@ -352,26 +374,15 @@ impl<B: HostTensors, C: CheckpointStrategy> FusedOps for Autodiff<B, C> {
         k: FloatTensor<Self>,
         v: FloatTensor<Self>,
     ) -> FloatTensor<Self> {
-        let nodes = [q.node(), k.node(), v.node()];
-        let (q, k, v) = (q.into_primitive(), k.into_primitive(), v.into_primitive());
-        match AttentionBackward
-            .prepare::<C>(nodes)
-            .compute_bound()
-            .stateful()
-        {
-            OpsKind::Tracked(prep) => {
-                let (o, lse) = attention_forward::<B>(q.clone(), k.clone(), v.clone());
-                let state = AttentionState {
-                    q,
-                    k,
-                    v,
-                    o: o.clone(),
-                    lse,
-                };
-                prep.finish(state, o)
-            }
-            OpsKind::UnTracked(prep) => prep.finish(attention_forward::<B>(q, k, v).0),
-        }
+        tracked_attention::<B, C>(q, k, v, false)
+    }
+
+    fn fused_attention_bf16(
+        q: FloatTensor<Self>,
+        k: FloatTensor<Self>,
+        v: FloatTensor<Self>,
+    ) -> FloatTensor<Self> {
+        tracked_attention::<B, C>(q, k, v, true)
     }
 
     fn fused_matmul_bf16(a: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self> {
@@ -388,6 +399,37 @@ impl<B: HostTensors, C: CheckpointStrategy> FusedOps for Autodiff<B, C> {
             }
             OpsKind::UnTracked(prep) => prep.finish(matmul_bf16_forward::<B>(a, b)),
         }
+    }
+}
+
+/// Attention as one autodiff node. Without a gradient to keep, the forward takes bf16 products
+/// when `bf16` ([`FusedOps::fused_attention_bf16`]); with one, the f32 kernels run forward
+/// and backward, so the gradient is the exact one of the output computed.
+fn tracked_attention<B: HostTensors, C: CheckpointStrategy>(
+    q: FloatTensor<Autodiff<B, C>>,
+    k: FloatTensor<Autodiff<B, C>>,
+    v: FloatTensor<Autodiff<B, C>>,
+    bf16: bool,
+) -> FloatTensor<Autodiff<B, C>> {
+    let nodes = [q.node(), k.node(), v.node()];
+    let (q, k, v) = (q.into_primitive(), k.into_primitive(), v.into_primitive());
+    match AttentionBackward
+        .prepare::<C>(nodes)
+        .compute_bound()
+        .stateful()
+    {
+        OpsKind::Tracked(prep) => {
+            let (o, lse) = attention_forward::<B>(q.clone(), k.clone(), v.clone(), false);
+            let state = AttentionState {
+                q,
+                k,
+                v,
+                o: o.clone(),
+                lse,
+            };
+            prep.finish(state, o)
+        }
+        OpsKind::UnTracked(prep) => prep.finish(attention_forward::<B>(q, k, v, bf16).0),
     }
 }
 

@@ -39,6 +39,16 @@ pub trait HostTensors: Backend {
 
     /// A tensor of `shape` holding `values` (row-major) on `device`.
     fn tensor(values: Vec<f32>, shape: Shape, device: &Self::Device) -> FloatTensor<Self>;
+
+    /// `tensor` with `f` applied to its values (row-major), in place where the backend can
+    /// lend them mutably (flex: a contiguous tensor no one else holds), else on a copy: an
+    /// element-wise op then writes no new buffer, which would first be zeroed.
+    fn update(tensor: FloatTensor<Self>, f: impl FnOnce(&mut [f32])) -> FloatTensor<Self> {
+        let (shape, device) = (tensor.shape(), tensor.device());
+        let mut values = Self::values(tensor).to_vec();
+        f(&mut values);
+        Self::tensor(values, shape, &device)
+    }
 }
 
 impl HostTensors for Flex {
@@ -63,6 +73,20 @@ impl HostTensors for Flex {
             Layout::contiguous(shape),
             DType::F32,
         )
+    }
+
+    fn update(mut tensor: FloatTensor<Self>, f: impl FnOnce(&mut [f32])) -> FloatTensor<Self> {
+        assert_eq!(tensor.dtype(), DType::F32, "fused kernels take f32 tensors");
+        if let Some((start, end)) = tensor.layout().contiguous_offsets()
+            && let Some(values) = tensor.try_storage_mut::<f32>()
+        {
+            f(&mut values[start..end]);
+            return tensor;
+        }
+        let (shape, device) = (tensor.shape(), tensor.device());
+        let mut values = Self::values(tensor).to_vec();
+        f(&mut values);
+        Self::tensor(values, shape, &device)
     }
 }
 

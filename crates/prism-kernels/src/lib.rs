@@ -156,6 +156,21 @@ pub fn attention(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
     )
 }
 
+/// [`attention`] for `--precision bf16`: on the CPU backends in f32, the fused host kernel with
+/// its two products' operands in bf16 and their sums in f32 where the chosen [`Bf16Kernel`] has
+/// an attention path (AMX's tiles) and no gradient is needed; under a gradient, and with the
+/// other kernels, the f32 kernel. Elsewhere, [`attention`].
+pub fn attention_bf16(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
+    if !(is_fused(&q) && q.dims() == k.dims() && q.dims() == v.dims()) {
+        return attention(q, k, v);
+    }
+    Tensor::from_dispatch(<Dispatch as FusedOps>::fused_attention_bf16(
+        q.into_dispatch(),
+        k.into_dispatch(),
+        v.into_dispatch(),
+    ))
+}
+
 /// Which attention the backends without a fused kernel (the GPU backends) run: for the process,
 /// the `PRISM_ATTENTION` environment variable (read once), so that one binary can time each
 /// (`PRISM_ATTENTION=flash prism bench`); for one thread for a while, [`GpuAttention::run`], so

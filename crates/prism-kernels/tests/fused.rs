@@ -105,11 +105,22 @@ fn gelu_matches_burn() {
     );
     for (backend, device) in devices() {
         let x = random([5, 40], &device) * 3.0;
-        let err = max_diff(gelu(x.clone()), unfused::gelu(x));
-        assert!(
-            err < 2e-6,
-            "gelu on {backend}: differs from Burn's by {err}"
+        let want = unfused::gelu(x.clone());
+        // A shared input is left as it was; one no one else holds may be overwritten.
+        let before = x.to_data();
+        let shared = gelu(x.clone());
+        assert_eq!(
+            x.to_data(),
+            before,
+            "gelu on {backend} changed its shared input"
         );
+        for (case, y) in [("shared", shared), ("owned", gelu(x))] {
+            let err = max_diff(y, want.clone());
+            assert!(
+                err < 2e-6,
+                "gelu on {backend} ({case} input): differs from Burn's by {err}"
+            );
+        }
     }
 }
 

@@ -76,29 +76,152 @@ impl Config {
     }
 }
 
-/// `a[r0..r0 + rows, k0..k0 + kc]` as strips of `MR` rows, row `i`'s pair `q` at
-/// `i * pairs + q`, zero beyond the matrix (`pairs` a whole number of tile steps).
-fn pack_a(a: View<'_>, r0: usize, rows: usize, k0: usize, kc: usize, out: &mut Vec<u32>) {
-    let pairs = kc.div_ceil(2).next_multiple_of(TILE);
-    out.clear();
-    out.resize(rows.div_ceil(MR) * MR * pairs, 0);
-    if a.col_stride == 1 {
-        for (i, words) in out.chunks_mut(pairs).take(rows).enumerate() {
-            let row = &a.data[(r0 + i) * a.row_stride + k0..][..kc];
-            // SAFETY: `available` checked the CPU, whose AMX implies AVX512-BF16.
-            unsafe { convert(row, &mut words[..kc.div_ceil(2)]) };
+/// This thread's tiles, configured for the kernel's blocks while the value lives and released
+/// when it is dropped. The configuration is per thread, so nothing inside its life may hand
+/// work to rayon (another task on this thread would release the tiles under it).
+pub(crate) struct Tiles(());
+
+impl Tiles {
+    /// Configures this thread's tiles. Panics unless [`available`].
+    pub(crate) fn configure() -> Self {
+        assert!(available(), "AMX tiles are not available on this CPU");
+        let config = Config::new();
+        // SAFETY: `available` checked the CPU and the permission; the configuration is 64
+        // valid bytes.
+        unsafe { asm!("ldtilecfg [{}]", in(reg) config.0.as_ptr(), options(nostack)) };
+        Self(())
+    }
+}
+
+impl Drop for Tiles {
+    fn drop(&mut self) {
+        // SAFETY: releases the tiles this thread configured.
+        unsafe { asm!("tilerelease", options(nostack, nomem)) };
+    }
+}
+
+/// An operand `b` packed for the tiles: rows `k0..k0 + kc` of it as panels of [`NR`] columns,
+/// `pairs` (a whole number of tile steps) pairs each.
+pub(crate) struct PackedB {
+    words: Vec<u32>,
+    pairs: usize,
+    cols: usize,
+}
+
+impl PackedB {
+    /// Packs `b[k0..k0 + kc, ..]` (in parallel over its panels). Panics unless [`available`].
+    pub(crate) fn new(b: View<'_>, k0: usize, kc: usize) -> Self {
+        assert!(available(), "AMX tiles are not available on this CPU");
+        let pairs = kc.div_ceil(2).next_multiple_of(TILE);
+        Self {
+            words: pack_b(b, k0, kc, pairs),
+            pairs,
+            cols: b.cols,
         }
+    }
+}
+
+/// An operand `a` packed for the tiles: strips of [`MR`] rows, row `i`'s pair `q` at
+/// `i * stride + q`, zero beyond the matrix. The row stride is one tile step longer than the
+/// pairs, so that a tile's 16 rows never fall in one cache set. Reused from call to call.
+#[derive(Default)]
+pub(crate) struct PackedA {
+    words: Vec<u32>,
+    rows: usize,
+    pairs: usize,
+    stride: usize,
+    /// Scratch for a transposed `a`: one strip's words, pair-major.
+    paired: Vec<u32>,
+}
+
+impl PackedA {
+    /// Packs `a[r0..r0 + rows, k0..k0 + kc]` in place of what it held. Panics unless
+    /// [`available`].
+    pub(crate) fn pack(&mut self, a: View<'_>, r0: usize, rows: usize, k0: usize, kc: usize) {
+        assert!(available(), "AMX tiles are not available on this CPU");
+        let used = kc.div_ceil(2);
+        self.pairs = used.next_multiple_of(TILE);
+        self.stride = self.pairs + TILE;
+        self.rows = rows;
+        let stride = self.stride;
+        // Only the padding is zeroed: the rows' pairs are all written below.
+        self.words.resize(rows.div_ceil(MR) * MR * stride, 0);
+        for (i, row) in self.words.chunks_mut(stride).enumerate() {
+            let pad = if i < rows { used } else { 0 };
+            row[pad..].fill(0);
+        }
+        if a.col_stride == 1 {
+            for (i, words) in self.words.chunks_mut(stride).take(rows).enumerate() {
+                let row = &a.data[(r0 + i) * a.row_stride + k0..][..kc];
+                // SAFETY: `available` checked the CPU, whose AMX implies AVX512-BF16.
+                unsafe { convert(row, &mut words[..used]) };
+            }
+            return;
+        }
+        // A transposed `a`: its columns are contiguous, so each strip's rows are paired column
+        // by column, then the pair-major words are turned row-major.
+        self.paired.resize(used * MR, 0);
+        for (s, strip) in self.words.chunks_mut(MR * stride).enumerate() {
+            let (i0, n) = (r0 + s * MR, MR.min(rows - s * MR));
+            pair_rows(a.t(), k0, kc, i0, n, &mut self.paired, MR);
+            for (q, words) in self.paired.chunks(MR).enumerate() {
+                for (i, &w) in words[..n].iter().enumerate() {
+                    strip[i * stride + q] = w;
+                }
+            }
+        }
+    }
+}
+
+/// `c[..a.rows, ..b.cols] = a b`, or `+=` when `accumulate`, with `c` row-major of row stride
+/// `ldc`. Whole tiles are stored straight into `c`; the clipped edges and sums go through a
+/// scratch block. Panics if the operands disagree or `c` is too short.
+pub(crate) fn product(
+    _tiles: &Tiles,
+    a: &PackedA,
+    b: &PackedB,
+    c: &mut [f32],
+    ldc: usize,
+    accumulate: bool,
+) {
+    assert_eq!(a.pairs, b.pairs, "amx product: inner sizes differ");
+    assert!(
+        ldc >= b.cols,
+        "amx product: row stride {ldc} under {} columns",
+        b.cols
+    );
+    if a.rows == 0 || b.cols == 0 {
         return;
     }
-    // A transposed `a`: its columns are contiguous, so each strip's rows are paired column
-    // by column, then the pair-major words are turned row-major.
-    let mut paired = vec![0u32; kc.div_ceil(2) * MR];
-    for (s, strip) in out.chunks_mut(MR * pairs).enumerate() {
-        let (i0, n) = (r0 + s * MR, MR.min(rows - s * MR));
-        pair_rows(a.t(), k0, kc, i0, n, &mut paired, MR);
-        for (q, words) in paired.chunks(MR).enumerate() {
-            for (i, &w) in words[..n].iter().enumerate() {
-                strip[i * pairs + q] = w;
+    assert!(
+        c.len() >= (a.rows - 1) * ldc + b.cols,
+        "amx product: output too short"
+    );
+    let pairs = a.pairs;
+    let mut scratch = [0.0f32; MR * NR];
+    for p in 0..b.cols.div_ceil(NR) {
+        let cols = NR.min(b.cols - p * NR);
+        let panel = &b.words[p * pairs * NR..][..pairs * NR];
+        for s in 0..a.rows.div_ceil(MR) {
+            let strip = &a.words[s * MR * a.stride..][..MR * a.stride];
+            let rows = MR.min(a.rows - s * MR);
+            let out = &mut c[s * MR * ldc + p * NR..];
+            if !accumulate && rows == MR && cols == NR {
+                // SAFETY: the tiles are configured (`_tiles`); the strip and panel hold
+                // `pairs` pairs at their strides; `c` holds 32 rows of 32 values from `out`
+                // at stride `ldc` (checked above).
+                unsafe { block_product(strip, a.stride, panel, pairs, out.as_mut_ptr(), ldc) };
+                continue;
+            }
+            // SAFETY: as above, into the scratch block of 32 rows of `NR`.
+            unsafe { block_product(strip, a.stride, panel, pairs, scratch.as_mut_ptr(), NR) };
+            for (i, sums) in scratch.chunks(NR).take(rows).enumerate() {
+                let out = &mut out[i * ldc..][..cols];
+                if accumulate {
+                    out.iter_mut().zip(sums).for_each(|(o, s)| *o += s);
+                } else {
+                    out.copy_from_slice(&sums[..cols]);
+                }
             }
         }
     }
@@ -108,59 +231,42 @@ fn pack_a(a: View<'_>, r0: usize, rows: usize, k0: usize, kc: usize, out: &mut V
 pub(super) fn matmul(a: View<'_>, b: View<'_>) -> Vec<f32> {
     let (m, k, n) = (a.rows, a.cols, b.cols);
     let mut c = vec![0.0f32; m * n];
-    let panels = n.div_ceil(NR);
     let mc = super::rows_per_task(m, MR, MC);
     for k0 in (0..k).step_by(KC) {
         let kc = KC.min(k - k0);
-        let pairs = kc.div_ceil(2).next_multiple_of(TILE);
-        let bp = pack_b(b, k0, kc, pairs);
+        let bp = PackedB::new(b, k0, kc);
         c.par_chunks_mut(mc * n)
             .enumerate()
-            .for_each_init(Vec::new, |ap, (t, block)| {
-                let rows = block.len() / n;
-                pack_a(a, t * mc, rows, k0, kc, ap);
-                let config = Config::new();
-                // SAFETY: `available` checked the CPU and the permission; the configuration
-                // is 64 valid bytes.
-                unsafe { asm!("ldtilecfg [{}]", in(reg) config.0.as_ptr(), options(nostack)) };
-                let mut tile = [0.0f32; MR * NR];
-                for p in 0..panels {
-                    let cols = NR.min(n - p * NR);
-                    let panel = &bp[p * pairs * NR..][..pairs * NR];
-                    for s in 0..rows.div_ceil(MR) {
-                        let strip = &ap[s * MR * pairs..][..MR * pairs];
-                        // SAFETY: as above; the strip and panel hold `pairs` pairs.
-                        unsafe { block_product(strip, panel, pairs, &mut tile) };
-                        let tile_rows = MR.min(rows - s * MR);
-                        for (i, sums) in tile.chunks(NR).take(tile_rows).enumerate() {
-                            let out = &mut block[(s * MR + i) * n + p * NR..][..cols];
-                            if k0 > 0 {
-                                out.iter_mut().zip(sums).for_each(|(o, s)| *o += s);
-                            } else {
-                                out.copy_from_slice(&sums[..cols]);
-                            }
-                        }
-                    }
-                }
-                // SAFETY: releases the tiles this thread configured.
-                unsafe { asm!("tilerelease", options(nostack, nomem)) };
+            .for_each_init(PackedA::default, |ap, (t, block)| {
+                ap.pack(a, t * mc, block.len() / n, k0, kc);
+                let tiles = Tiles::configure();
+                product(&tiles, ap, &bp, block, n, k0 > 0);
             });
     }
     c
 }
 
-/// `tile (MR x NR, row-major) = strip panel` over `pairs` pairs, with the tiles configured.
+/// `c (MR x NR at row stride ldc) = strip panel` over `pairs` pairs, with the tiles configured.
 ///
 /// # Safety
-/// The CPU runs AMX-BF16, this thread's tiles are configured by [`Config`], and `strip` and
-/// `panel` hold `MR * pairs` and `pairs * NR` words, `pairs` a multiple of [`TILE`].
-unsafe fn block_product(strip: &[u32], panel: &[u32], pairs: usize, tile: &mut [f32; MR * NR]) {
-    debug_assert!(strip.len() >= MR * pairs && panel.len() >= pairs * NR);
+/// The CPU runs AMX-BF16, this thread's tiles are configured by [`Config`], `strip` holds
+/// `MR` rows of `pairs` pairs at row stride `stride` words, `panel` holds `pairs * NR` words,
+/// `pairs` is a multiple of [`TILE`], and `c` points at 32 writable rows of 32 values at
+/// row stride `ldc`.
+unsafe fn block_product(
+    strip: &[u32],
+    stride: usize,
+    panel: &[u32],
+    pairs: usize,
+    c: *mut f32,
+    ldc: usize,
+) {
+    debug_assert!(strip.len() >= (MR - 1) * stride + pairs && panel.len() >= pairs * NR);
     debug_assert_eq!(pairs % TILE, 0);
-    let (a_stride, b_stride, c_stride) = (4 * pairs, 4 * NR, 4 * NR);
-    // SAFETY: tile step `s` reads strip words `i * pairs + 16 s .. + 16` for rows `i < 32`
+    let (a_stride, b_stride, c_stride) = (4 * stride, 4 * NR, 4 * ldc);
+    // SAFETY: tile step `s` reads strip words `i * stride + 16 s .. + 16` for rows `i < 32`
     // and panel words `(16 s + q) * NR .. + 32` for `q < 16`, all inside the slices; the
-    // stores write `tile`'s 32 rows of 32 values.
+    // stores write 32 rows of 32 values from `c` at stride `ldc`, which the caller provides.
     unsafe {
         asm!(
             "tilezero tmm0",
@@ -171,7 +277,7 @@ unsafe fn block_product(strip: &[u32], panel: &[u32], pairs: usize, tile: &mut [
         );
         let (a0, a1, b) = (
             strip.as_ptr(),
-            strip.as_ptr().add(TILE * pairs),
+            strip.as_ptr().add(TILE * stride),
             panel.as_ptr(),
         );
         for s in 0..pairs / TILE {
@@ -192,14 +298,13 @@ unsafe fn block_product(strip: &[u32], panel: &[u32], pairs: usize, tile: &mut [
                 options(nostack, readonly)
             );
         }
-        let c = tile.as_mut_ptr();
         asm!(
             "tilestored [{c} + {sc}*1], tmm0",
             "tilestored [{c} + {sc}*1 + 64], tmm1",
             "tilestored [{c2} + {sc}*1], tmm2",
             "tilestored [{c2} + {sc}*1 + 64], tmm3",
             c = in(reg) c,
-            c2 = in(reg) c.add(TILE * NR),
+            c2 = in(reg) c.add(TILE * ldc),
             sc = in(reg) c_stride,
             options(nostack)
         );

@@ -187,15 +187,16 @@ pub struct SelfAttention {
     kind: AttentionKind,
     #[module(skip)]
     feature_map: FeatureMap,
-    /// The `qkv` and output products with bf16 operands (the block's bf16 on the CPU
-    /// backends).
+    /// The `qkv` and output products, and full attention's, with bf16 operands (the block's
+    /// bf16 on the CPU backends).
     #[module(skip)]
     bf16_products: bool,
 }
 
 impl SelfAttention {
     /// Whether the `qkv` and output products take bf16 operands (f32 inputs only; see
-    /// [`prism_kernels::linear_bf16`]).
+    /// [`prism_kernels::linear_bf16`]), and full attention's too where the CPU's bf16 kernel has
+    /// an attention path ([`prism_kernels::attention_bf16`]).
     pub(crate) fn set_bf16_products(&mut self, bf16: bool) {
         self.bf16_products = bf16;
     }
@@ -246,6 +247,7 @@ impl SelfAttention {
         let [batch, tokens, width] = x.dims();
         let (q, k, v) = self.project(x);
         let heads_out = match self.kind {
+            AttentionKind::Full if self.bf16_products => prism_kernels::attention_bf16(q, k, v),
             AttentionKind::Full => prism_kernels::attention(q, k, v),
             AttentionKind::Linear => linear_attention(q, k, v, self.feature_map, self.linear_eps),
         };

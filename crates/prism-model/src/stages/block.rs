@@ -188,8 +188,10 @@ impl PrismBlock {
     /// The dtype the block's activations and weights take on `device`: the compute
     /// precision's, except bf16 on the CPU backends, where they stay f32 and the matrix
     /// products of the attention and MLP layers take bf16 operands
-    /// ([`prism_kernels::matmul_bf16`]: AVX512-BF16 where the CPU has it); the norms, GELU and
-    /// attention's softmax then run the fused f32 kernels, as f32 does.
+    /// ([`prism_kernels::matmul_bf16`]: AMX or AVX512-BF16 where the CPU has them), as do full
+    /// attention's own two products where the CPU has AMX and no gradient is needed
+    /// ([`prism_kernels::attention_bf16`]); the norms, GELU and attention's softmax then run
+    /// the fused f32 kernels, as f32 does.
     pub fn working_dtype(&self, device: &Device) -> FloatDType {
         match self.compute {
             Precision::Bf16 if prism_kernels::is_host(device) => FloatDType::F32,
