@@ -344,16 +344,11 @@ fn score_gradient(p: &[f32], ds: &mut [f32], o: &[f32], grad: &[f32], head_dim: 
 mod tests {
     use super::*;
 
-    /// Values in [-2, 2) from a fixed linear congruential sequence.
+    /// Values in [-2, 2).
     fn values(n: usize, seed: u64) -> Vec<f32> {
-        let mut s = seed;
-        (0..n)
-            .map(|_| {
-                s = s
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                (s >> 40) as f32 / (1u64 << 22) as f32 - 2.0
-            })
+        crate::test_util::values(n, seed)
+            .into_iter()
+            .map(|x| 2.0 * x)
             .collect()
     }
 

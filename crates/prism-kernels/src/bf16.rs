@@ -456,19 +456,7 @@ mod avx512 {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// Uniform values in [-1, 1) from a fixed linear congruential sequence.
-    fn values(n: usize, seed: u64) -> Vec<f32> {
-        let mut s = seed;
-        (0..n)
-            .map(|_| {
-                s = s
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                (s >> 40) as f32 / (1u64 << 23) as f32 - 1.0
-            })
-            .collect()
-    }
+    use crate::test_util::values;
 
     /// The product of the rounded operands in f64.
     fn reference(a: View<'_>, b: View<'_>) -> Vec<f64> {

@@ -33,6 +33,8 @@ mod host;
 mod math;
 mod matrix;
 mod norm;
+#[cfg(test)]
+mod test_util;
 pub mod unfused;
 
 use burn::backend::{Dispatch, DispatchDevice};
