@@ -1,0 +1,45 @@
+#!/usr/bin/env python3
+"""Interleaved A/B timing of prism builds on a noisy host.
+
+    python3 scripts/peer/ab.py ROUNDS BUILD_A BUILD_B [...] -- BENCH_ARGS
+
+Runs `BUILD bench BENCH_ARGS --json F` for every build in turn, ROUNDS times, so that a slow
+spell of the host falls on every build alike. Prints, per bench row, each build's median over
+the rounds and the last build's ratio to the first (of the medians, and of the fastest runs),
+then every run's time.
+"""
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+
+
+def main():
+    if "--" not in sys.argv or len(sys.argv) < 4:
+        sys.exit(__doc__)
+    split = sys.argv.index("--")
+    rounds, builds, args = int(sys.argv[1]), sys.argv[2:split], sys.argv[split + 1:]
+    times = {}
+    for _ in range(rounds):
+        for build in builds:
+            with tempfile.NamedTemporaryFile(suffix=".json") as f:
+                subprocess.run([build, "bench", *args, "--json", f.name], check=True,
+                               capture_output=True)
+                for row in json.load(open(f.name))["rows"]:
+                    times.setdefault((row["model"], row["res"]), {}).setdefault(build, []).append(row["ms"])
+    names = [os.path.basename(b) for b in builds]
+    print("| row | " + " | ".join(names) + " | last / first (medians) | last / first (fastest) |")
+    print("|---|" + "---:|" * (len(builds) + 2))
+    for (model, res), runs in times.items():
+        medians = [statistics.median(runs[b]) for b in builds]
+        fastest = min(runs[builds[-1]]) / min(runs[builds[0]])
+        print(f"| {model} {res} | " + " | ".join(f"{m:.1f}" for m in medians)
+              + f" | {medians[-1] / medians[0]:.2f}x | {fastest:.2f}x |")
+    for (model, res), runs in times.items():
+        print(model, res, {os.path.basename(b): [round(t, 1) for t in runs[b]] for b in builds})
+
+
+if __name__ == "__main__":
+    main()
