@@ -11,6 +11,7 @@
 
 use std::arch::asm;
 use std::arch::x86_64::__cpuid_count;
+use std::marker::PhantomData;
 use std::sync::OnceLock;
 
 use rayon::prelude::*;
@@ -78,8 +79,9 @@ impl Config {
 
 /// This thread's tiles, configured for the kernel's blocks while the value lives and released
 /// when it is dropped. The configuration is per thread, so nothing inside its life may hand
-/// work to rayon (another task on this thread would release the tiles under it).
-pub(crate) struct Tiles(());
+/// work to rayon (another task on this thread would release the tiles under it), and the value
+/// cannot leave its thread (the raw pointer's marker makes it neither `Send` nor `Sync`).
+pub(crate) struct Tiles(PhantomData<*const ()>);
 
 impl Tiles {
     /// Configures this thread's tiles. Panics unless [`available`].
@@ -89,7 +91,7 @@ impl Tiles {
         // SAFETY: `available` checked the CPU and the permission; the configuration is 64
         // valid bytes.
         unsafe { asm!("ldtilecfg [{}]", in(reg) config.0.as_ptr(), options(nostack)) };
-        Self(())
+        Self(PhantomData)
     }
 }
 
