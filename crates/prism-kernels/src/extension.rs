@@ -36,19 +36,15 @@ pub trait FusedOps: Backend {
         gamma: FloatTensor<Self>,
         eps: f64,
     ) -> FloatTensor<Self>;
-    /// `softmax(q k^T / sqrt(d_h)) v` on `[B, H, T, d_h]` tensors.
+    /// `softmax(q k^T / sqrt(d_h)) v` on `[B, H, T, d_h]` tensors. With `bf16`, the two
+    /// products take bf16 operands where the CPU's bf16 kernel has an attention path (AMX's
+    /// tiles; see [`Bf16Kernel`]) and no gradient is needed; under a gradient, the f32 kernels
+    /// run forward and backward, so the gradient is the exact one of the output computed.
     fn fused_attention(
         q: FloatTensor<Self>,
         k: FloatTensor<Self>,
         v: FloatTensor<Self>,
-    ) -> FloatTensor<Self>;
-    /// [`FusedOps::fused_attention`] with the two products' operands in bf16 where the CPU's
-    /// bf16 kernel has an attention path (AMX's tiles; see [`Bf16Kernel`]) and no gradient is
-    /// needed; under a gradient, the f32 kernels forward and backward.
-    fn fused_attention_bf16(
-        q: FloatTensor<Self>,
-        k: FloatTensor<Self>,
-        v: FloatTensor<Self>,
+        bf16: bool,
     ) -> FloatTensor<Self>;
     /// `a b` for `a` of `[.., m, k]` and `b` of `[k, n]`, both rounded to bf16 and the
     /// products summed in f32 (see [`Bf16Kernel`]).
@@ -244,16 +240,9 @@ macro_rules! host_fused_ops {
                 q: FloatTensor<Self>,
                 k: FloatTensor<Self>,
                 v: FloatTensor<Self>,
+                bf16: bool,
             ) -> FloatTensor<Self> {
-                attention_forward::<Self>(q, k, v, false).0
-            }
-
-            fn fused_attention_bf16(
-                q: FloatTensor<Self>,
-                k: FloatTensor<Self>,
-                v: FloatTensor<Self>,
-            ) -> FloatTensor<Self> {
-                attention_forward::<Self>(q, k, v, true).0
+                attention_forward::<Self>(q, k, v, bf16).0
             }
 
             fn fused_matmul_bf16(a: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self> {
@@ -373,16 +362,28 @@ impl<B: HostTensors, C: CheckpointStrategy> FusedOps for Autodiff<B, C> {
         q: FloatTensor<Self>,
         k: FloatTensor<Self>,
         v: FloatTensor<Self>,
+        bf16: bool,
     ) -> FloatTensor<Self> {
-        tracked_attention::<B, C>(q, k, v, false)
-    }
-
-    fn fused_attention_bf16(
-        q: FloatTensor<Self>,
-        k: FloatTensor<Self>,
-        v: FloatTensor<Self>,
-    ) -> FloatTensor<Self> {
-        tracked_attention::<B, C>(q, k, v, true)
+        let nodes = [q.node(), k.node(), v.node()];
+        let (q, k, v) = (q.into_primitive(), k.into_primitive(), v.into_primitive());
+        match AttentionBackward
+            .prepare::<C>(nodes)
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                let (o, lse) = attention_forward::<B>(q.clone(), k.clone(), v.clone(), false);
+                let state = AttentionState {
+                    q,
+                    k,
+                    v,
+                    o: o.clone(),
+                    lse,
+                };
+                prep.finish(state, o)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(attention_forward::<B>(q, k, v, bf16).0),
+        }
     }
 
     fn fused_matmul_bf16(a: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self> {
@@ -399,37 +400,6 @@ impl<B: HostTensors, C: CheckpointStrategy> FusedOps for Autodiff<B, C> {
             }
             OpsKind::UnTracked(prep) => prep.finish(matmul_bf16_forward::<B>(a, b)),
         }
-    }
-}
-
-/// Attention as one autodiff node. Without a gradient to keep, the forward takes bf16 products
-/// when `bf16` ([`FusedOps::fused_attention_bf16`]); with one, the f32 kernels run forward
-/// and backward, so the gradient is the exact one of the output computed.
-fn tracked_attention<B: HostTensors, C: CheckpointStrategy>(
-    q: FloatTensor<Autodiff<B, C>>,
-    k: FloatTensor<Autodiff<B, C>>,
-    v: FloatTensor<Autodiff<B, C>>,
-    bf16: bool,
-) -> FloatTensor<Autodiff<B, C>> {
-    let nodes = [q.node(), k.node(), v.node()];
-    let (q, k, v) = (q.into_primitive(), k.into_primitive(), v.into_primitive());
-    match AttentionBackward
-        .prepare::<C>(nodes)
-        .compute_bound()
-        .stateful()
-    {
-        OpsKind::Tracked(prep) => {
-            let (o, lse) = attention_forward::<B>(q.clone(), k.clone(), v.clone(), false);
-            let state = AttentionState {
-                q,
-                k,
-                v,
-                o: o.clone(),
-                lse,
-            };
-            prep.finish(state, o)
-        }
-        OpsKind::UnTracked(prep) => prep.finish(attention_forward::<B>(q, k, v, bf16).0),
     }
 }
 

@@ -44,11 +44,19 @@ pub trait HostTensors: Backend {
     /// lend them mutably (flex: a contiguous tensor no one else holds), else on a copy: an
     /// element-wise op then writes no new buffer, which would first be zeroed.
     fn update(tensor: FloatTensor<Self>, f: impl FnOnce(&mut [f32])) -> FloatTensor<Self> {
-        let (shape, device) = (tensor.shape(), tensor.device());
-        let mut values = Self::values(tensor).to_vec();
-        f(&mut values);
-        Self::tensor(values, shape, &device)
+        updated_copy::<Self>(tensor, f)
     }
+}
+
+/// A new tensor holding `f` applied to a copy of `tensor`'s values.
+fn updated_copy<B: HostTensors>(
+    tensor: FloatTensor<B>,
+    f: impl FnOnce(&mut [f32]),
+) -> FloatTensor<B> {
+    let (shape, device) = (tensor.shape(), tensor.device());
+    let mut values = B::values(tensor).to_vec();
+    f(&mut values);
+    B::tensor(values, shape, &device)
 }
 
 impl HostTensors for Flex {
@@ -83,10 +91,7 @@ impl HostTensors for Flex {
             f(&mut values[start..end]);
             return tensor;
         }
-        let (shape, device) = (tensor.shape(), tensor.device());
-        let mut values = Self::values(tensor).to_vec();
-        f(&mut values);
-        Self::tensor(values, shape, &device)
+        updated_copy::<Self>(tensor, f)
     }
 }
 

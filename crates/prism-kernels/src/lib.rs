@@ -128,11 +128,25 @@ pub fn linear_bf16<const D: usize>(layer: &Linear, x: Tensor<D>) -> Tensor<D> {
 /// where the adapter has them) but is only taken when no gradient is needed (under autodiff
 /// Burn decomposes it as [`unfused`] does).
 pub fn attention(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
+    attention_in(q, k, v, false)
+}
+
+/// [`attention`] for `--precision bf16`: on the CPU backends in f32, the fused host kernel with
+/// its two products' operands in bf16 and their sums in f32 where the chosen [`Bf16Kernel`] has
+/// an attention path (AMX's tiles) and no gradient is needed; under a gradient, and with the
+/// other kernels, the f32 kernel. Elsewhere, as [`attention`].
+pub fn attention_bf16(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
+    attention_in(q, k, v, true)
+}
+
+/// [`attention`], its fused host kernel taking bf16 products when `bf16`.
+fn attention_in(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>, bf16: bool) -> Tensor<4> {
     if is_fused(&q) && q.dims() == k.dims() && q.dims() == v.dims() {
         return Tensor::from_dispatch(<Dispatch as FusedOps>::fused_attention(
             q.into_dispatch(),
             k.into_dispatch(),
             v.into_dispatch(),
+            bf16,
         ));
     }
     let tracked = q.is_tracked() || k.is_tracked() || v.is_tracked();
@@ -156,21 +170,6 @@ pub fn attention(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
             is_causal: false,
         },
     )
-}
-
-/// [`attention`] for `--precision bf16`: on the CPU backends in f32, the fused host kernel with
-/// its two products' operands in bf16 and their sums in f32 where the chosen [`Bf16Kernel`] has
-/// an attention path (AMX's tiles) and no gradient is needed; under a gradient, and with the
-/// other kernels, the f32 kernel. Elsewhere, [`attention`].
-pub fn attention_bf16(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
-    if !(is_fused(&q) && q.dims() == k.dims() && q.dims() == v.dims()) {
-        return attention(q, k, v);
-    }
-    Tensor::from_dispatch(<Dispatch as FusedOps>::fused_attention_bf16(
-        q.into_dispatch(),
-        k.into_dispatch(),
-        v.into_dispatch(),
-    ))
 }
 
 /// Which attention the backends without a fused kernel (the GPU backends) run: for the process,
