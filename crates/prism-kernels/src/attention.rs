@@ -7,13 +7,12 @@
 //! Layout: `q`, `k`, `v`, `o` and their gradients are `[heads, T, d_h]` row-major, where
 //! `heads` is batch times heads; `lse` is `[heads, T]`.
 
-use gemm::{Parallelism, gemm};
 use multiversion::multiversion;
 use rayon::prelude::*;
 
 use crate::bf16::Bf16Kernel;
 use crate::math;
-use crate::matrix::View;
+use crate::matrix::{View, matmul};
 
 /// Query rows per block.
 const BLOCK: usize = 64;
@@ -40,40 +39,6 @@ impl Dims {
             self.heads * self.per_head(),
             "attention: {name} has {len} values, expected {:?}",
             self
-        );
-    }
-}
-
-/// `dst (row-major lhs.rows x rhs.cols) = [dst +] scale * lhs rhs`, single-threaded (the
-/// callers parallelise over heads and blocks).
-fn matmul(dst: &mut [f32], accumulate: bool, lhs: View<'_>, rhs: View<'_>, scale: f32) {
-    assert_eq!(lhs.cols, rhs.rows, "matmul: inner sizes differ");
-    assert_eq!(dst.len(), lhs.rows * rhs.cols, "matmul: output size");
-    lhs.check();
-    rhs.check();
-    // SAFETY: the views were checked to lie inside their slices and `dst` holds exactly
-    // `m x n` row-major values; gemm reads and writes nothing else.
-    unsafe {
-        gemm(
-            lhs.rows,
-            rhs.cols,
-            lhs.cols,
-            dst.as_mut_ptr(),
-            1,
-            rhs.cols as isize,
-            accumulate,
-            lhs.data.as_ptr(),
-            lhs.col_stride as isize,
-            lhs.row_stride as isize,
-            rhs.data.as_ptr(),
-            rhs.col_stride as isize,
-            rhs.row_stride as isize,
-            1.0,
-            scale,
-            false,
-            false,
-            false,
-            Parallelism::None,
         );
     }
 }

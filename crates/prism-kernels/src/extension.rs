@@ -14,6 +14,7 @@ use burn::tensor::Shape;
 
 use crate::attention::{self, Dims};
 use crate::bf16::{self, Bf16Kernel};
+use crate::conv::{self, ConvDims, Wanted};
 use crate::elementwise;
 use crate::host::HostTensors;
 use crate::matrix::View;
@@ -49,6 +50,16 @@ pub trait FusedOps: Backend {
     /// `a b` for `a` of `[.., m, k]` and `b` of `[k, n]`, both rounded to bf16 and the
     /// products summed in f32 (see [`Bf16Kernel`]).
     fn fused_matmul_bf16(a: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self>;
+    /// A 2D convolution with groups 1 and dilation 1 as matrix products over an im2col buffer
+    /// (see [`conv`]): `x` `[B, C, H, W]`, `weight` `[O, C, k_h, k_w]`, `bias` `[O]`, `padding`
+    /// zeros on both sides of each axis.
+    fn fused_conv2d(
+        x: FloatTensor<Self>,
+        weight: FloatTensor<Self>,
+        bias: FloatTensor<Self>,
+        stride: [usize; 2],
+        padding: [usize; 2],
+    ) -> FloatTensor<Self>;
 }
 
 /// GELU through the host kernel.
@@ -212,6 +223,40 @@ fn matmul_bf16_backward<B: HostTensors>(
     ]
 }
 
+/// The sizes of a convolution of `x` `[B, C, H, W]` by `weight` `[O, C, k_h, k_w]`.
+fn conv_dims(x: &Shape, weight: &Shape, stride: [usize; 2], padding: [usize; 2]) -> ConvDims {
+    assert!(
+        x.num_dims() == 4 && weight.num_dims() == 4 && x[1] == weight[1],
+        "fused conv2d takes x [B, C, H, W] and weight [O, C, kh, kw], got {x:?}, {weight:?}"
+    );
+    ConvDims {
+        batch: x[0],
+        channels: x[1],
+        outputs: weight[0],
+        size: [x[2], x[3]],
+        kernel: [weight[2], weight[3]],
+        stride,
+        padding,
+    }
+}
+
+/// A convolution through the host kernel.
+fn conv_forward<B: HostTensors>(
+    x: FloatTensor<B>,
+    weight: FloatTensor<B>,
+    bias: FloatTensor<B>,
+    stride: [usize; 2],
+    padding: [usize; 2],
+) -> FloatTensor<B> {
+    let device = x.device();
+    let d = conv_dims(&x.shape(), &weight.shape(), stride, padding);
+    let [h, w] = d
+        .output_size()
+        .expect("fused conv2d: the kernel fits the padded input");
+    let y = conv::forward(&B::values(x), &B::values(weight), &B::values(bias), d);
+    B::tensor(y, Shape::from(vec![d.batch, d.outputs, h, w]), &device)
+}
+
 /// The concrete CPU backends: the host kernels directly.
 macro_rules! host_fused_ops {
     ($backend:ty) => {
@@ -247,6 +292,16 @@ macro_rules! host_fused_ops {
 
             fn fused_matmul_bf16(a: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self> {
                 matmul_bf16_forward::<Self>(a, b)
+            }
+
+            fn fused_conv2d(
+                x: FloatTensor<Self>,
+                weight: FloatTensor<Self>,
+                bias: FloatTensor<Self>,
+                stride: [usize; 2],
+                padding: [usize; 2],
+            ) -> FloatTensor<Self> {
+                conv_forward::<Self>(x, weight, bias, stride, padding)
             }
         }
     };
@@ -309,6 +364,48 @@ impl<B: HostTensors> Backward<B, 2> for MatmulBf16Backward {
 
     fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
         backward_each::<B, _, 2>(ops, grads, matmul_bf16_backward::<B>);
+    }
+}
+
+/// Backward step of [`FusedOps::fused_conv2d`]: the input's gradient and the weight's and
+/// bias's, each computed only when its input is tracked.
+#[derive(Debug)]
+struct ConvBackward;
+
+impl<B: HostTensors> Backward<B, 3> for ConvBackward {
+    type State = (FloatTensor<B>, FloatTensor<B>, [usize; 2], [usize; 2]);
+
+    fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let Ops {
+            parents,
+            node,
+            state: (x, weight, stride, padding),
+        } = ops;
+        let grad = grads.consume::<B>(&node);
+        let (x_shape, w_shape, device) = (x.shape(), weight.shape(), x.device());
+        let d = conv_dims(&x_shape, &w_shape, stride, padding);
+        let [dx_node, dw_node, db_node] = parents;
+        let wanted = Wanted {
+            input: dx_node.is_some(),
+            weight: dw_node.is_some() || db_node.is_some(),
+        };
+        let (dx, dw, db) = conv::backward(
+            &B::values(x),
+            &B::values(weight),
+            &B::values(grad),
+            d,
+            wanted,
+        );
+        let gradients = [
+            (dx_node, dx, x_shape),
+            (dw_node, dw, w_shape),
+            (db_node, db, Shape::from(vec![d.outputs])),
+        ];
+        for (node, values, shape) in gradients {
+            if let Some(node) = node {
+                grads.register::<B>(node.id, B::tensor(values, shape, &device));
+            }
+        }
     }
 }
 
@@ -399,6 +496,30 @@ impl<B: HostTensors, C: CheckpointStrategy> FusedOps for Autodiff<B, C> {
                 prep.finish((a, b), c)
             }
             OpsKind::UnTracked(prep) => prep.finish(matmul_bf16_forward::<B>(a, b)),
+        }
+    }
+
+    fn fused_conv2d(
+        x: FloatTensor<Self>,
+        weight: FloatTensor<Self>,
+        bias: FloatTensor<Self>,
+        stride: [usize; 2],
+        padding: [usize; 2],
+    ) -> FloatTensor<Self> {
+        let nodes = [x.node(), weight.node(), bias.node()];
+        let (x, weight, bias) = (
+            x.into_primitive(),
+            weight.into_primitive(),
+            bias.into_primitive(),
+        );
+        match ConvBackward.prepare::<C>(nodes).compute_bound().stateful() {
+            OpsKind::Tracked(prep) => {
+                let y = conv_forward::<B>(x.clone(), weight.clone(), bias, stride, padding);
+                prep.finish((x, weight, stride, padding), y)
+            }
+            OpsKind::UnTracked(prep) => {
+                prep.finish(conv_forward::<B>(x, weight, bias, stride, padding))
+            }
         }
     }
 }

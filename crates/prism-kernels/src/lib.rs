@@ -25,6 +25,7 @@
 
 mod attention;
 mod bf16;
+mod conv;
 #[cfg(any(feature = "wgpu", feature = "cuda"))]
 pub mod device;
 mod elementwise;
@@ -38,7 +39,8 @@ mod test_util;
 pub mod unfused;
 
 use burn::backend::{Dispatch, DispatchDevice};
-use burn::nn::Linear;
+use burn::nn::conv::Conv2d;
+use burn::nn::{Linear, PaddingConfig2d};
 use burn::tensor::{DType, Device, Tensor};
 
 pub use bf16::Bf16Kernel;
@@ -117,6 +119,61 @@ pub fn linear_bf16<const D: usize>(layer: &Linear, x: Tensor<D>) -> Tensor<D> {
         Some(bias) => y + bias.val().unsqueeze(),
         None => y,
     }
+}
+
+/// A `Conv2d` layer on `x` `[B, C, H, W]`. On f32 tensors of the CPU backends, for groups 1,
+/// dilation 1 and symmetric padding: the host kernel, one autodiff node whose products (im2col
+/// and `gemm`, forward and backward) replace Burn's convolutions there, which are slow for the
+/// weight gradient at the heads' few images and many pixels. Elsewhere: the layer itself.
+pub fn conv2d(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
+    let weight = layer.weight.val();
+    let Some(padding) = host_conv_padding(layer, &x, &weight) else {
+        return layer.forward(x);
+    };
+    let bias = match &layer.bias {
+        Some(bias) => bias.val(),
+        None => Tensor::zeros([weight.dims()[0]], &x.device()),
+    };
+    Tensor::from_dispatch(<Dispatch as FusedOps>::fused_conv2d(
+        x.into_dispatch(),
+        weight.into_dispatch(),
+        bias.into_dispatch(),
+        layer.stride,
+        padding,
+    ))
+}
+
+/// Whether [`conv2d`] runs `layer` on `x` through the host kernel.
+pub fn is_fused_conv2d(layer: &Conv2d, x: &Tensor<4>) -> bool {
+    host_conv_padding(layer, x, &layer.weight.val()).is_some()
+}
+
+/// The padding on each side of each axis when the host kernel runs `layer` on `x`; `None`
+/// when it does not (another backend or dtype, groups, dilation, asymmetric padding, or a
+/// kernel larger than the padded input).
+fn host_conv_padding(layer: &Conv2d, x: &Tensor<4>, weight: &Tensor<4>) -> Option<[usize; 2]> {
+    let [_, channels, height, width] = x.dims();
+    let [_, weight_channels, kh, kw] = weight.dims();
+    let plain = layer.groups == 1 && layer.dilation == [1, 1] && channels == weight_channels;
+    if !is_fused(x) || weight.dtype() != DType::F32 || !plain {
+        return None;
+    }
+    let padding = match layer.padding {
+        PaddingConfig2d::Valid => [0, 0],
+        PaddingConfig2d::Explicit(top, left, bottom, right) if top == bottom && left == right => {
+            [top, left]
+        }
+        PaddingConfig2d::Same if layer.stride == [1, 1] && kh % 2 == 1 && kw % 2 == 1 => {
+            [kh / 2, kw / 2]
+        }
+        _ => return None,
+    };
+    let fits = |n: usize, p: usize, k: usize| n + 2 * p >= k;
+    (fits(height, padding[0], kh)
+        && fits(width, padding[1], kw)
+        && layer.stride[0] > 0
+        && layer.stride[1] > 0)
+        .then_some(padding)
 }
 
 /// Softmax attention `softmax(q k^T / sqrt(d_h)) v` on `[B, H, T, d_h]` tensors of one shape.

@@ -1,4 +1,6 @@
-//! Strided matrix views over host slices, for the kernels' matrix products.
+//! Strided matrix views over host slices, and the kernels' matrix product on them.
+
+use gemm::{Parallelism, gemm};
 
 /// A strided matrix view over a slice: element `(r, c)` at `r * row_stride + c * col_stride`.
 #[derive(Clone, Copy)]
@@ -57,5 +59,39 @@ impl<'a> View<'a> {
     #[inline(always)]
     pub(crate) fn at(&self, r: usize, c: usize) -> f32 {
         self.data[r * self.row_stride + c * self.col_stride]
+    }
+}
+
+/// `dst (row-major lhs.rows x rhs.cols) = [dst +] scale * lhs rhs`, single-threaded (the
+/// callers parallelise: attention over heads and blocks, convolutions over images).
+pub(crate) fn matmul(dst: &mut [f32], accumulate: bool, lhs: View<'_>, rhs: View<'_>, scale: f32) {
+    assert_eq!(lhs.cols, rhs.rows, "matmul: inner sizes differ");
+    assert_eq!(dst.len(), lhs.rows * rhs.cols, "matmul: output size");
+    lhs.check();
+    rhs.check();
+    // SAFETY: the views were checked to lie inside their slices and `dst` holds exactly
+    // `m x n` row-major values; gemm reads and writes nothing else.
+    unsafe {
+        gemm(
+            lhs.rows,
+            rhs.cols,
+            lhs.cols,
+            dst.as_mut_ptr(),
+            1,
+            rhs.cols as isize,
+            accumulate,
+            lhs.data.as_ptr(),
+            lhs.col_stride as isize,
+            lhs.row_stride as isize,
+            rhs.data.as_ptr(),
+            rhs.col_stride as isize,
+            rhs.row_stride as isize,
+            1.0,
+            scale,
+            false,
+            false,
+            false,
+            Parallelism::None,
+        );
     }
 }

@@ -4,9 +4,13 @@
 // burn-ndarray is deprecated upstream, but the project's tests run on it.
 #![allow(deprecated)]
 
+use burn::module::Module;
+use burn::nn::PaddingConfig2d;
+use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::tensor::{Device, Distribution, Tensor};
 use prism_kernels::{
-    Bf16Kernel, attention, gelu, is_fused, layer_norm, matmul_bf16, rms_norm, unfused,
+    Bf16Kernel, attention, conv2d, gelu, is_fused, is_fused_conv2d, layer_norm, matmul_bf16,
+    rms_norm, unfused,
 };
 
 fn devices() -> [(&'static str, Device); 2] {
@@ -176,6 +180,96 @@ fn attention_takes_strided_inputs() {
         |[q, k, v]| unfused::attention(q.swap_dims(2, 3), k.swap_dims(2, 3), v.swap_dims(2, 3)),
         2e-5,
     );
+}
+
+/// The convolutions of the DPT head and of LPIPS's AlexNet (3 x 3 same, 11 x 11 with stride 4,
+/// 5 x 5, a 1 x 1 without bias), and a rectangular one, against Burn's `Conv2d`: values, and the
+/// gradients of the input, weight and bias; with a frozen layer (LPIPS's), the input's alone.
+#[test]
+fn conv2d_matches_burn() {
+    let layers = |device: &Device| -> Vec<(&'static str, Conv2d, [usize; 4])> {
+        let config = |i, o, k: [usize; 2]| Conv2dConfig::new([i, o], k);
+        vec![
+            (
+                "3x3 same",
+                config(5, 4, [3, 3])
+                    .with_padding(PaddingConfig2d::Same)
+                    .init(device),
+                [2, 5, 9, 7],
+            ),
+            (
+                "11x11 stride 4",
+                config(3, 4, [11, 11])
+                    .with_stride([4, 4])
+                    .with_padding(PaddingConfig2d::Explicit(2, 2, 2, 2))
+                    .init(device),
+                [2, 3, 23, 19],
+            ),
+            (
+                "5x5",
+                config(3, 2, [5, 5])
+                    .with_padding(PaddingConfig2d::Explicit(2, 2, 2, 2))
+                    .init(device),
+                [1, 3, 6, 8],
+            ),
+            (
+                "1x1 without bias",
+                config(6, 1, [1, 1]).with_bias(false).init(device),
+                [3, 6, 5, 4],
+            ),
+            (
+                "3x2 stride 2x1, padding 0x1",
+                config(2, 3, [3, 2])
+                    .with_stride([2, 1])
+                    .with_padding(PaddingConfig2d::Explicit(0, 1, 0, 1))
+                    .init(device),
+                [2, 2, 8, 5],
+            ),
+        ]
+    };
+    for (backend, device) in devices() {
+        device.seed(5);
+        let ad = device.clone().autodiff();
+        for (name, layer, shape) in layers(&ad) {
+            let x = random(shape, &ad).require_grad();
+            assert!(
+                is_fused_conv2d(&layer, &x),
+                "{name} on {backend}: the fused path must be taken"
+            );
+            let plain = layer.valid();
+            let x_plain = x.clone().inner();
+            let err = max_diff(conv2d(&plain, x_plain.clone()), plain.forward(x_plain));
+            assert!(err < 1e-5, "{name} on {backend}: forward differs by {err}");
+
+            let (ya, yb) = (conv2d(&layer, x.clone()), layer.forward(x.clone()));
+            let w = random(ya.dims(), &ad);
+            let (ga, gb) = (
+                (ya * w.clone()).sum().backward(),
+                (yb * w.clone()).sum().backward(),
+            );
+            let grad = |p: &str, a: Option<Tensor<4>>, b: Option<Tensor<4>>| {
+                let (a, b) = (a.expect(p), b.expect(p));
+                let err = max_diff(a, b);
+                assert!(err < 1e-4, "{name} on {backend}: d{p} differs by {err}");
+            };
+            grad("x", x.grad(&ga), x.grad(&gb));
+            grad(
+                "w",
+                layer.weight.val().grad(&ga),
+                layer.weight.val().grad(&gb),
+            );
+            if let Some(bias) = &layer.bias {
+                let (a, b) = (bias.val().grad(&ga), bias.val().grad(&gb));
+                let err = max_diff(a.unwrap(), b.unwrap());
+                assert!(err < 1e-4, "{name} on {backend}: dbias differs by {err}");
+            }
+
+            let frozen = layer.clone().no_grad();
+            let grads = (conv2d(&frozen, x.clone()) * w).sum().backward();
+            assert!(frozen.weight.val().grad(&grads).is_none());
+            grad("x (frozen layer)", x.grad(&grads), x.grad(&gb));
+        }
+    }
 }
 
 #[test]

@@ -22,6 +22,7 @@ use burn::tensor::module::max_pool2d;
 use burn::tensor::ops::MaxPoolOptions;
 use burn::tensor::{Device, Tensor};
 use prism_core::phases::{Phase, timed};
+use prism_kernels::conv2d;
 
 use crate::LossError;
 
@@ -211,11 +212,11 @@ impl Lpips {
     /// The five ReLU taps of AlexNet's feature extractor.
     fn taps(&self, x: Tensor<4>) -> [Tensor<4>; 5] {
         let pool = |x: Tensor<4>| max_pool2d(x, MaxPoolOptions::new([3, 3]).with_stride([2, 2]));
-        let t1 = relu(self.conv1.forward(x));
-        let t2 = relu(self.conv2.forward(pool(t1.clone())));
-        let t3 = relu(self.conv3.forward(pool(t2.clone())));
-        let t4 = relu(self.conv4.forward(t3.clone()));
-        let t5 = relu(self.conv5.forward(t4.clone()));
+        let t1 = relu(conv2d(&self.conv1, x));
+        let t2 = relu(conv2d(&self.conv2, pool(t1.clone())));
+        let t3 = relu(conv2d(&self.conv3, pool(t2.clone())));
+        let t4 = relu(conv2d(&self.conv4, t3.clone()));
+        let t5 = relu(conv2d(&self.conv5, t4.clone()));
         [t1, t2, t3, t4, t5]
     }
 }
@@ -253,7 +254,7 @@ impl LpipsReference<'_> {
             .map(|((a, b), lin)| {
                 let diff = unit_normalise(a).sub(b.clone());
                 let [_, _, h, w] = diff.dims();
-                lin.forward(diff.clone().mul(diff))
+                conv2d(lin, diff.clone().mul(diff))
                     .reshape([batch, h * w])
                     .mean_dim(1)
                     .reshape([batch])

@@ -18,7 +18,7 @@ use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::{Initializer, Linear, LinearConfig, PaddingConfig2d};
 use burn::tensor::{Device, Tensor, TensorData};
 use prism_core::axes::permute;
-use prism_kernels::gelu;
+use prism_kernels::{conv2d, gelu};
 
 /// The upsampling factors of the reassembled maps, from the earliest tap (for patch sizes that
 /// are multiples of 4; otherwise every map stays on the token grid, see [`reassemble_factors`]).
@@ -228,9 +228,9 @@ impl DptHead {
         for (map, conv) in maps.zip(self.refine.iter().rev()) {
             let [_, _, mh, mw] = map.dims();
             x = resize(x, mh, mw) + map;
-            x = x.clone() + conv.forward(gelu(x));
+            x = x.clone() + conv2d(conv, gelu(x));
         }
-        let x = gelu(self.head_conv.forward(x));
+        let x = gelu(conv2d(&self.head_conv, x));
         let x = resize(x, height, width);
         per_pixel(&self.head_out, gelu(per_pixel(&self.head_hidden, x)))
     }

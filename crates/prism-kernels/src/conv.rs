@@ -1,0 +1,415 @@
+//! 2D convolutions on host slices (groups 1, dilation 1, any kernel, stride and symmetric zero
+//! padding) as matrix products over an im2col buffer, forward and backward.
+//!
+//! Per image, the buffer `cols` is `[C k_h k_w, H_o W_o]`: row `(c k_h + i) k_w + j` holds input
+//! channel `c` read at offset `(i, j)` of the kernel for every output pixel (zero outside the
+//! image). With the weight `W` as `[O, C k_h k_w]` (its own row-major layout):
+//!
+//! ```text
+//! y = W cols + b,   dW = sum_images dy cols^T,   d cols = W^T dy  (scattered back: dx),
+//! db = sum_images, pixels dy
+//! ```
+//!
+//! Images are spread over the threads, each product single-threaded. Layout: `x` is
+//! `[B, C, H, W]`, `y` and `dy` are `[B, O, H_o, W_o]`, row-major.
+
+use rayon::prelude::*;
+
+use crate::matrix::{View, matmul};
+
+/// Sizes of a convolution call.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ConvDims {
+    /// Images.
+    pub batch: usize,
+    /// Input channels `C`.
+    pub channels: usize,
+    /// Output channels `O`.
+    pub outputs: usize,
+    /// Input height and width.
+    pub size: [usize; 2],
+    /// Kernel height and width.
+    pub kernel: [usize; 2],
+    /// Stride along the height and the width.
+    pub stride: [usize; 2],
+    /// Zeros added on both sides of the height and of the width.
+    pub padding: [usize; 2],
+}
+
+impl ConvDims {
+    /// The output's height and width, `(n + 2 p - k) / s + 1` along each axis; `None` where the
+    /// kernel is larger than the padded input or a stride is 0.
+    pub fn output_size(&self) -> Option<[usize; 2]> {
+        let axis = |a: usize| {
+            let padded = self.size[a] + 2 * self.padding[a];
+            (self.stride[a] > 0 && self.kernel[a] > 0 && padded >= self.kernel[a])
+                .then(|| (padded - self.kernel[a]) / self.stride[a] + 1)
+        };
+        Some([axis(0)?, axis(1)?])
+    }
+
+    /// Rows of the im2col buffer: `C k_h k_w`.
+    fn taps(&self) -> usize {
+        self.channels * self.kernel[0] * self.kernel[1]
+    }
+
+    /// Output pixels per image.
+    fn pixels(&self) -> usize {
+        let [h, w] = self.output_size().expect("a valid convolution");
+        h * w
+    }
+
+    /// Values of one input image.
+    fn image(&self) -> usize {
+        self.channels * self.size[0] * self.size[1]
+    }
+
+    /// Whether the im2col buffer is the input itself (a 1 x 1 kernel, stride 1, no padding).
+    fn pointwise(&self) -> bool {
+        self.kernel == [1, 1] && self.stride == [1, 1] && self.padding == [0, 0]
+    }
+
+    fn check(&self, x: usize, w: usize) {
+        assert!(self.output_size().is_some(), "conv: no output for {self:?}");
+        assert_eq!(
+            x,
+            self.batch * self.image(),
+            "conv: input size for {self:?}"
+        );
+        assert_eq!(
+            w,
+            self.outputs * self.taps(),
+            "conv: weight size for {self:?}"
+        );
+    }
+}
+
+/// For kernel offset `k` along an axis: the output positions `lo..hi` that read inside the
+/// input (`o s + k - p` in `0..n`), and the first one's input position.
+fn valid_range(n: usize, out: usize, k: usize, s: usize, p: usize) -> (usize, usize, usize) {
+    // o s + k >= p  and  o s + k - p < n.
+    let lo = p.saturating_sub(k).div_ceil(s);
+    let hi = if n + p > k {
+        ((n + p - k - 1) / s + 1).min(out)
+    } else {
+        0
+    };
+    let lo = lo.min(hi);
+    (lo, hi, (lo * s + k).saturating_sub(p))
+}
+
+/// The im2col buffer `[C k_h k_w, H_o W_o]` of one image `x` (`[C, H, W]`).
+fn im2col(x: &[f32], d: &ConvDims, cols: &mut [f32]) {
+    let [h, w] = d.size;
+    let [oh, ow] = d.output_size().expect("a valid convolution");
+    let [kh, kw] = d.kernel;
+    let [sh, sw] = d.stride;
+    let rows = cols.chunks_exact_mut(oh * ow);
+    for (row, dst) in rows.enumerate() {
+        let (c, i, j) = (row / (kh * kw), row / kw % kh, row % kw);
+        let (y0, y1, iy0) = valid_range(h, oh, i, sh, d.padding[0]);
+        let (x0, x1, ix0) = valid_range(w, ow, j, sw, d.padding[1]);
+        dst[..y0 * ow].fill(0.0);
+        dst[y1 * ow..].fill(0.0);
+        for (k, oy) in (y0..y1).enumerate() {
+            let src = &x[(c * h + iy0 + k * sh) * w..][..w];
+            let line = &mut dst[oy * ow..(oy + 1) * ow];
+            line[..x0].fill(0.0);
+            line[x1..].fill(0.0);
+            if sw == 1 {
+                line[x0..x1].copy_from_slice(&src[ix0..ix0 + (x1 - x0)]);
+            } else {
+                for (t, v) in line[x0..x1].iter_mut().enumerate() {
+                    *v = src[ix0 + t * sw];
+                }
+            }
+        }
+    }
+}
+
+/// The adjoint of [`im2col`]: adds each buffer value to the input pixel it was read from.
+fn col2im(cols: &[f32], d: &ConvDims, dx: &mut [f32]) {
+    let [h, w] = d.size;
+    let [oh, ow] = d.output_size().expect("a valid convolution");
+    let [kh, kw] = d.kernel;
+    let [sh, sw] = d.stride;
+    for (row, src) in cols.chunks_exact(oh * ow).enumerate() {
+        let (c, i, j) = (row / (kh * kw), row / kw % kh, row % kw);
+        let (y0, y1, iy0) = valid_range(h, oh, i, sh, d.padding[0]);
+        let (x0, x1, ix0) = valid_range(w, ow, j, sw, d.padding[1]);
+        for (k, oy) in (y0..y1).enumerate() {
+            let dst = &mut dx[(c * h + iy0 + k * sh) * w..][..w];
+            for (t, &v) in src[oy * ow + x0..oy * ow + x1].iter().enumerate() {
+                dst[ix0 + t * sw] += v;
+            }
+        }
+    }
+}
+
+/// `y = conv(x, weight) + bias`: `[B, O, H_o, W_o]` from `x` `[B, C, H, W]`, `weight`
+/// `[O, C, k_h, k_w]` and `bias` `[O]`.
+pub fn forward(x: &[f32], weight: &[f32], bias: &[f32], d: ConvDims) -> Vec<f32> {
+    d.check(x.len(), weight.len());
+    assert_eq!(bias.len(), d.outputs, "conv: bias size");
+    let (taps, pixels) = (d.taps(), d.pixels());
+    let mut y = vec![0.0f32; d.batch * d.outputs * pixels];
+    if y.is_empty() || taps == 0 {
+        return y;
+    }
+    let w = View::rows(weight, d.outputs, taps);
+    y.par_chunks_mut(d.outputs * pixels)
+        .zip(x.par_chunks(d.image()))
+        .for_each_init(Vec::new, |cols, (y, x)| {
+            let cols = image_cols(x, &d, cols);
+            matmul(y, false, w, View::rows(cols, taps, pixels), 1.0);
+            for (row, &b) in y.chunks_exact_mut(pixels).zip(bias) {
+                row.iter_mut().for_each(|v| *v += b);
+            }
+        });
+    y
+}
+
+/// One image's im2col buffer: the image itself for a pointwise convolution, else `buffer`
+/// filled by [`im2col`].
+fn image_cols<'a>(x: &'a [f32], d: &ConvDims, buffer: &'a mut Vec<f32>) -> &'a [f32] {
+    if d.pointwise() {
+        return x;
+    }
+    buffer.resize(d.taps() * d.pixels(), 0.0);
+    im2col(x, d, buffer);
+    buffer
+}
+
+/// Which gradients [`backward`] computes.
+#[derive(Clone, Copy, Debug)]
+pub struct Wanted {
+    /// `dx`.
+    pub input: bool,
+    /// `dweight` and `dbias`.
+    pub weight: bool,
+}
+
+/// The gradients `(dx, dweight, dbias)` of [`forward`] for `dy`; those not [`Wanted`] are
+/// empty.
+pub fn backward(
+    x: &[f32],
+    weight: &[f32],
+    dy: &[f32],
+    d: ConvDims,
+    wanted: Wanted,
+) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+    d.check(x.len(), weight.len());
+    let (taps, pixels) = (d.taps(), d.pixels());
+    assert_eq!(
+        dy.len(),
+        d.batch * d.outputs * pixels,
+        "conv: gradient size"
+    );
+    let mut dx = vec![0.0f32; if wanted.input { x.len() } else { 0 }];
+    let zeros = || (vec![0.0f32; d.outputs * taps], vec![0.0f32; d.outputs]);
+    if pixels == 0 || taps == 0 {
+        let (dw, db) = if wanted.weight {
+            zeros()
+        } else {
+            Default::default()
+        };
+        return (dx, dw, db);
+    }
+    let w = View::rows(weight, d.outputs, taps);
+    // Per image: its input gradient in place, its weight gradient summed over the images.
+    let per_image = |cols: &mut Vec<f32>, (dx, (x, dy)): (&mut [f32], (&[f32], &[f32]))| {
+        let dy_view = View::rows(dy, d.outputs, pixels);
+        let mut dw = Vec::new();
+        let mut db = Vec::new();
+        if wanted.weight {
+            let cols = image_cols(x, &d, cols);
+            dw = vec![0.0f32; d.outputs * taps];
+            matmul(
+                &mut dw,
+                false,
+                dy_view,
+                View::transposed(cols, pixels, taps),
+                1.0,
+            );
+            db = dy.chunks_exact(pixels).map(|r| r.iter().sum()).collect();
+        }
+        if wanted.input {
+            if d.pointwise() {
+                matmul(dx, false, w.t(), dy_view, 1.0);
+            } else {
+                cols.resize(taps * pixels, 0.0);
+                matmul(cols, false, w.t(), dy_view, 1.0);
+                col2im(cols, &d, dx);
+            }
+        }
+        (dw, db)
+    };
+    let add = |(mut a, mut b): (Vec<f32>, Vec<f32>), (c, e): (Vec<f32>, Vec<f32>)| {
+        if a.is_empty() {
+            return (c, e);
+        }
+        a.iter_mut().zip(&c).for_each(|(a, c)| *a += c);
+        b.iter_mut().zip(&e).for_each(|(b, e)| *b += e);
+        (a, b)
+    };
+    let images = x
+        .par_chunks(d.image())
+        .zip(dy.par_chunks(d.outputs * pixels));
+    let (dw, db) = if wanted.input {
+        dx.par_chunks_mut(d.image())
+            .zip(images)
+            .map_init(Vec::new, per_image)
+            .reduce(|| (Vec::new(), Vec::new()), add)
+    } else {
+        images
+            .map_init(Vec::new, |cols, pair| per_image(cols, (&mut [][..], pair)))
+            .reduce(|| (Vec::new(), Vec::new()), add)
+    };
+    let (dw, db) = if wanted.weight && dw.is_empty() {
+        zeros()
+    } else {
+        (dw, db)
+    };
+    (dx, dw, db)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::test_util::values;
+
+    /// The convolution by its definition, in f64.
+    fn reference(x: &[f32], weight: &[f32], bias: &[f32], d: &ConvDims) -> Vec<f64> {
+        let [h, w] = d.size;
+        let [oh, ow] = d.output_size().unwrap();
+        let [kh, kw] = d.kernel;
+        let mut y = vec![0.0f64; d.batch * d.outputs * oh * ow];
+        for b in 0..d.batch {
+            for o in 0..d.outputs {
+                for oy in 0..oh {
+                    for ox in 0..ow {
+                        let mut s = bias[o] as f64;
+                        for c in 0..d.channels {
+                            for i in 0..kh {
+                                for j in 0..kw {
+                                    let iy =
+                                        (oy * d.stride[0] + i) as isize - d.padding[0] as isize;
+                                    let ix =
+                                        (ox * d.stride[1] + j) as isize - d.padding[1] as isize;
+                                    if iy < 0 || ix < 0 || iy >= h as isize || ix >= w as isize {
+                                        continue;
+                                    }
+                                    let xv = x[((b * d.channels + c) * h + iy as usize) * w
+                                        + ix as usize];
+                                    let wv = weight[((o * d.channels + c) * kh + i) * kw + j];
+                                    s += xv as f64 * wv as f64;
+                                }
+                            }
+                        }
+                        y[((b * d.outputs + o) * oh + oy) * ow + ox] = s;
+                    }
+                }
+            }
+        }
+        y
+    }
+
+    /// Kernels, strides and paddings of the model's heads and of LPIPS's AlexNet, on small odd
+    /// sizes, including a kernel wider than the unpadded input.
+    fn cases() -> Vec<ConvDims> {
+        let d = |batch, channels, outputs, size, kernel, stride, padding| ConvDims {
+            batch,
+            channels,
+            outputs,
+            size,
+            kernel,
+            stride,
+            padding,
+        };
+        vec![
+            d(2, 3, 4, [7, 6], [3, 3], [1, 1], [1, 1]),
+            d(3, 2, 5, [9, 11], [5, 5], [2, 3], [2, 2]),
+            d(1, 3, 2, [13, 12], [11, 11], [4, 4], [2, 2]),
+            d(2, 4, 3, [5, 4], [1, 1], [1, 1], [0, 0]),
+            d(1, 2, 2, [2, 3], [3, 3], [1, 1], [1, 1]),
+            d(2, 1, 2, [6, 5], [3, 2], [1, 2], [0, 1]),
+        ]
+    }
+
+    #[test]
+    fn forward_matches_the_definition() {
+        for d in cases() {
+            let x = values(d.batch * d.image(), 1);
+            let w = values(d.outputs * d.taps(), 2);
+            let b = values(d.outputs, 3);
+            let want = reference(&x, &w, &b, &d);
+            let got = forward(&x, &w, &b, d);
+            assert_eq!(got.len(), want.len(), "{d:?}");
+            for (g, r) in got.iter().zip(&want) {
+                assert!((*g as f64 - r).abs() < 1e-4, "{d:?}: {g} against {r}");
+            }
+        }
+    }
+
+    /// The gradients against central differences of `sum(y * r)` for a fixed `r`: linear in
+    /// each of `x`, `w` and `b`, so the differences are exact up to rounding.
+    #[test]
+    fn gradients_match_finite_differences() {
+        for d in cases() {
+            let x = values(d.batch * d.image(), 4);
+            let w = values(d.outputs * d.taps(), 5);
+            let b = values(d.outputs, 6);
+            let r = values(forward(&x, &w, &b, d).len(), 7);
+            let loss = |x: &[f32], w: &[f32], b: &[f32]| -> f64 {
+                let y = reference(x, w, b, &d);
+                y.iter().zip(&r).map(|(y, r)| y * *r as f64).sum()
+            };
+            let all = Wanted {
+                input: true,
+                weight: true,
+            };
+            let (dx, dw, db) = backward(&x, &w, &r, d, all);
+            let eps = 1e-2f32;
+            let check = |name: &str, grad: &[f32], at: &dyn Fn(usize, f32) -> f64| {
+                for (i, &g) in grad.iter().enumerate() {
+                    let fd = (at(i, eps) - at(i, -eps)) / (2.0 * eps as f64);
+                    assert!(
+                        (g as f64 - fd).abs() < 1e-3,
+                        "{d:?} d{name}[{i}]: {g} against {fd}"
+                    );
+                }
+            };
+            let bumped = |v: &[f32], i: usize, e: f32| {
+                let mut v = v.to_vec();
+                v[i] += e;
+                v
+            };
+            check("x", &dx, &|i, e| loss(&bumped(&x, i, e), &w, &b));
+            check("w", &dw, &|i, e| loss(&x, &bumped(&w, i, e), &b));
+            check("b", &db, &|i, e| loss(&x, &w, &bumped(&b, i, e)));
+            // Each part alone gives the same values.
+            let input = backward(
+                &x,
+                &w,
+                &r,
+                d,
+                Wanted {
+                    input: true,
+                    weight: false,
+                },
+            );
+            let weight = backward(
+                &x,
+                &w,
+                &r,
+                d,
+                Wanted {
+                    input: false,
+                    weight: true,
+                },
+            );
+            assert_eq!((input.0, input.1.len()), (dx, 0), "{d:?}");
+            assert_eq!((weight.0.len(), weight.1, weight.2), (0, dw, db), "{d:?}");
+        }
+    }
+}
