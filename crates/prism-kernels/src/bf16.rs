@@ -11,10 +11,9 @@
 
 use std::sync::OnceLock;
 
-use gemm::{Parallelism, gemm};
 use rayon::prelude::*;
 
-use crate::matrix::View;
+use crate::matrix::{self, View};
 
 /// The code that computes a product of bf16 operands.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -132,33 +131,10 @@ fn rounded(a: View<'_>, b: View<'_>) -> Vec<f32> {
         out
     };
     let (ra, rb) = (round(a), round(b));
-    let (m, k, n) = (a.rows, a.cols, b.cols);
-    let mut c = vec![0.0; m * n];
-    // SAFETY: `ra` is row-major m x k, `rb` row-major k x n, `c` row-major m x n.
-    unsafe {
-        gemm(
-            m,
-            n,
-            k,
-            c.as_mut_ptr(),
-            1,
-            n as isize,
-            false,
-            ra.as_ptr(),
-            1,
-            k as isize,
-            rb.as_ptr(),
-            1,
-            n as isize,
-            0.0,
-            1.0,
-            false,
-            false,
-            false,
-            Parallelism::Rayon(0),
-        );
-    }
-    c
+    matrix::product(
+        View::rows(&ra, a.rows, a.cols),
+        View::rows(&rb, b.rows, b.cols),
+    )
 }
 
 #[cfg(target_arch = "x86_64")]

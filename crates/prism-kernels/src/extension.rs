@@ -17,7 +17,7 @@ use crate::bf16::{self, Bf16Kernel};
 use crate::conv::{self, ConvDims, Wanted};
 use crate::elementwise;
 use crate::host::HostTensors;
-use crate::matrix::View;
+use crate::matrix::{self, View};
 use crate::norm::{self, NormKind};
 
 /// Fused operations of the backbone. Every method takes and returns f32 tensors.
@@ -47,9 +47,10 @@ pub trait FusedOps: Backend {
         v: FloatTensor<Self>,
         bf16: bool,
     ) -> FloatTensor<Self>;
-    /// `a b` for `a` of `[.., m, k]` and `b` of `[k, n]`, both rounded to bf16 and the
-    /// products summed in f32 (see [`Bf16Kernel`]).
-    fn fused_matmul_bf16(a: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self>;
+    /// `a b` for `a` of `[.., m, k]` and `b` of `[k, n]`, the leading dimensions of `a` taken
+    /// as rows of one product. With `bf16`, both operands are rounded to bf16 and the products
+    /// summed in f32 (see [`Bf16Kernel`]), forward and backward.
+    fn fused_matmul(a: FloatTensor<Self>, b: FloatTensor<Self>, bf16: bool) -> FloatTensor<Self>;
     /// A 2D convolution with groups 1 and dilation 1 as matrix products over an im2col buffer
     /// (see [`conv`]): `x` `[B, C, H, W]`, `weight` `[O, C, k_h, k_w]`, `bias` `[O]`, `padding`
     /// zeros on both sides of each axis.
@@ -181,42 +182,51 @@ fn product_dims(a: &Shape, b: &Shape) -> (usize, usize, usize) {
     let k = a[a.num_dims() - 1];
     assert!(
         b.num_dims() == 2 && b[0] == k,
-        "bf16 matmul takes [.., m, k] by [k, n], got {a:?} by {b:?}"
+        "fused matmul takes [.., m, k] by [k, n], got {a:?} by {b:?}"
     );
     (a.num_elements() / k.max(1), k, b[1])
 }
 
-/// The row-major `a b` through the chosen bf16 kernel (zeros when the inner size is 0).
-fn bf16_product(a: View<'_>, b: View<'_>) -> Vec<f32> {
+/// The row-major `a b`, in f32 products or (`bf16`) through the chosen bf16 kernel (zeros when
+/// the inner size is 0).
+fn product(a: View<'_>, b: View<'_>, bf16: bool) -> Vec<f32> {
     if a.rows == 0 || b.cols == 0 || a.cols == 0 {
         return vec![0.0; a.rows * b.cols];
     }
-    bf16::matmul(Bf16Kernel::chosen(), a, b)
+    if bf16 {
+        bf16::matmul(Bf16Kernel::chosen(), a, b)
+    } else {
+        matrix::product(a, b)
+    }
 }
 
-/// `a b` in bf16 products through the host kernel.
-fn matmul_bf16_forward<B: HostTensors>(a: FloatTensor<B>, b: FloatTensor<B>) -> FloatTensor<B> {
+/// `a b` through the host kernel.
+fn matmul_forward<B: HostTensors>(
+    a: FloatTensor<B>,
+    b: FloatTensor<B>,
+    bf16: bool,
+) -> FloatTensor<B> {
     let (a_shape, device) = (a.shape(), a.device());
     let (m, k, n) = product_dims(&a_shape, &b.shape());
     let (a, b) = (B::values(a), B::values(b));
-    let c = bf16_product(View::rows(&a, m, k), View::rows(&b, k, n));
+    let c = product(View::rows(&a, m, k), View::rows(&b, k, n), bf16);
     let mut shape = a_shape;
     let last = shape.num_dims() - 1;
     shape[last] = n;
     B::tensor(c, shape, &device)
 }
 
-/// `(da, db) = (g b^T, a^T g)` in bf16 products through the host kernel, `a` of all
-/// leading dimensions taken as rows.
-fn matmul_bf16_backward<B: HostTensors>(
-    (a, b): (FloatTensor<B>, FloatTensor<B>),
+/// `(da, db) = (g b^T, a^T g)` through the host kernel, `a` of all leading dimensions taken
+/// as rows.
+fn matmul_backward<B: HostTensors>(
+    (a, b, bf16): (FloatTensor<B>, FloatTensor<B>, bool),
     grad: FloatTensor<B>,
 ) -> [FloatTensor<B>; 2] {
     let (a_shape, b_shape, device) = (a.shape(), b.shape(), a.device());
     let (m, k, n) = product_dims(&a_shape, &b_shape);
     let (a, b, g) = (B::values(a), B::values(b), B::values(grad));
-    let da = bf16_product(View::rows(&g, m, n), View::transposed(&b, n, k));
-    let db = bf16_product(View::transposed(&a, k, m), View::rows(&g, m, n));
+    let da = product(View::rows(&g, m, n), View::transposed(&b, n, k), bf16);
+    let db = product(View::transposed(&a, k, m), View::rows(&g, m, n), bf16);
     [
         B::tensor(da, a_shape, &device),
         B::tensor(db, b_shape, &device),
@@ -290,8 +300,12 @@ macro_rules! host_fused_ops {
                 attention_forward::<Self>(q, k, v, bf16).0
             }
 
-            fn fused_matmul_bf16(a: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self> {
-                matmul_bf16_forward::<Self>(a, b)
+            fn fused_matmul(
+                a: FloatTensor<Self>,
+                b: FloatTensor<Self>,
+                bf16: bool,
+            ) -> FloatTensor<Self> {
+                matmul_forward::<Self>(a, b, bf16)
             }
 
             fn fused_conv2d(
@@ -355,15 +369,15 @@ impl<B: HostTensors> Backward<B, 3> for AttentionBackward {
     }
 }
 
-/// Backward step of [`FusedOps::fused_matmul_bf16`].
+/// Backward step of [`FusedOps::fused_matmul`].
 #[derive(Debug)]
-struct MatmulBf16Backward;
+struct MatmulBackward;
 
-impl<B: HostTensors> Backward<B, 2> for MatmulBf16Backward {
-    type State = (FloatTensor<B>, FloatTensor<B>);
+impl<B: HostTensors> Backward<B, 2> for MatmulBackward {
+    type State = (FloatTensor<B>, FloatTensor<B>, bool);
 
     fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
-        backward_each::<B, _, 2>(ops, grads, matmul_bf16_backward::<B>);
+        backward_each::<B, _, 2>(ops, grads, matmul_backward::<B>);
     }
 }
 
@@ -483,19 +497,19 @@ impl<B: HostTensors, C: CheckpointStrategy> FusedOps for Autodiff<B, C> {
         }
     }
 
-    fn fused_matmul_bf16(a: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self> {
+    fn fused_matmul(a: FloatTensor<Self>, b: FloatTensor<Self>, bf16: bool) -> FloatTensor<Self> {
         let nodes = [a.node(), b.node()];
         let (a, b) = (a.into_primitive(), b.into_primitive());
-        match MatmulBf16Backward
+        match MatmulBackward
             .prepare::<C>(nodes)
             .compute_bound()
             .stateful()
         {
             OpsKind::Tracked(prep) => {
-                let c = matmul_bf16_forward::<B>(a.clone(), b.clone());
-                prep.finish((a, b), c)
+                let c = matmul_forward::<B>(a.clone(), b.clone(), bf16);
+                prep.finish((a, b, bf16), c)
             }
-            OpsKind::UnTracked(prep) => prep.finish(matmul_bf16_forward::<B>(a, b)),
+            OpsKind::UnTracked(prep) => prep.finish(matmul_forward::<B>(a, b, bf16)),
         }
     }
 

@@ -7,6 +7,10 @@
 //! backward, vectorised for AVX-512 / AVX2 (chosen at run time) and split over threads;
 //! attention runs block by block over the queries with `gemm` (FlashAttention's scheme).
 //!
+//! The blocks' matrix products ([`linear`], [`matmul`]) and the heads' and LPIPS's convolutions
+//! ([`conv2d`], im2col and `gemm`) are one node each too, their outputs written once by
+//! `gemm`.
+//!
 //! `--precision bf16` on the CPU runs the blocks' matrix products through [`matmul_bf16`]:
 //! operands rounded to bf16, products summed in f32, with AMX's tiles or AVX512-BF16's
 //! `vdpbf16ps` where the CPU has them ([`Bf16Kernel`], chosen at run time), forward and
@@ -93,6 +97,22 @@ pub fn rms_norm<const D: usize>(x: Tensor<D>, gamma: Tensor<1>, eps: f64) -> Ten
     ))
 }
 
+/// `x w` for `x` of `[.., m, k]` and `w` of `[k, n]`. On f32 tensors of the CPU backends: one
+/// `gemm` over all of `x`'s rows, forward and backward (one autodiff node), writing its
+/// outputs straight into the result (Burn's flex matmul zeroes its output and then copies it
+/// to an aligned buffer, and materialises the transposes of its backward pass). Elsewhere:
+/// Burn's matmul.
+pub fn matmul<const D: usize>(x: Tensor<D>, w: Tensor<2>) -> Tensor<D> {
+    if !is_fused(&x) || w.dtype() != DType::F32 {
+        return x.matmul(w.unsqueeze());
+    }
+    Tensor::from_dispatch(<Dispatch as FusedOps>::fused_matmul(
+        x.into_dispatch(),
+        w.into_dispatch(),
+        false,
+    ))
+}
+
 /// `x w` with both operands rounded to bf16 and the products summed in f32: the matrix
 /// products of `--precision bf16` on the CPU, for `x` of `[.., m, k]` and `w` of `[k, n]`.
 /// On f32 tensors of the CPU backends: the host kernel [`Bf16Kernel::chosen`] picks (one
@@ -102,10 +122,17 @@ pub fn matmul_bf16<const D: usize>(x: Tensor<D>, w: Tensor<2>) -> Tensor<D> {
     if !is_fused(&x) || w.dtype() != DType::F32 {
         return unfused::matmul_bf16(x, w);
     }
-    Tensor::from_dispatch(<Dispatch as FusedOps>::fused_matmul_bf16(
+    Tensor::from_dispatch(<Dispatch as FusedOps>::fused_matmul(
         x.into_dispatch(),
         w.into_dispatch(),
+        true,
     ))
+}
+
+/// A `Linear` layer on `x` through [`matmul`] and the bias added: the layer's own values, its
+/// product on the host kernel where [`matmul`] takes it.
+pub fn linear<const D: usize>(layer: &Linear, x: Tensor<D>) -> Tensor<D> {
+    with_bias(layer, matmul(x, layer.weight.val()))
 }
 
 /// A `Linear` layer on `x` with its product's operands in bf16: for f32 `x`, [`matmul_bf16`]
@@ -114,7 +141,11 @@ pub fn linear_bf16<const D: usize>(layer: &Linear, x: Tensor<D>) -> Tensor<D> {
     if x.dtype() != DType::F32 {
         return layer.forward(x);
     }
-    let y = matmul_bf16(x, layer.weight.val());
+    with_bias(layer, matmul_bf16(x, layer.weight.val()))
+}
+
+/// `y` plus `layer`'s bias, if it has one.
+fn with_bias<const D: usize>(layer: &Linear, y: Tensor<D>) -> Tensor<D> {
     match &layer.bias {
         Some(bias) => y + bias.val().unsqueeze(),
         None => y,

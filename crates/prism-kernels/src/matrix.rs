@@ -95,3 +95,47 @@ pub(crate) fn matmul(dst: &mut [f32], accumulate: bool, lhs: View<'_>, rhs: View
         );
     }
 }
+
+/// The row-major `a b` through `gemm`, parallel over the threads when the product is large
+/// enough to pay for them.
+pub(crate) fn product(a: View<'_>, b: View<'_>) -> Vec<f32> {
+    assert_eq!(a.cols, b.rows, "product: inner sizes differ");
+    a.check();
+    b.check();
+    let (m, k, n) = (a.rows, a.cols, b.cols);
+    let mut c = vec![0.0f32; m * n];
+    let parallelism = if m * n * k >= PARALLEL_FLOPS {
+        Parallelism::Rayon(0)
+    } else {
+        Parallelism::None
+    };
+    // SAFETY: the views were checked to lie inside their slices and `c` holds exactly `m x n`
+    // row-major values; gemm reads and writes nothing else.
+    unsafe {
+        gemm(
+            m,
+            n,
+            k,
+            c.as_mut_ptr(),
+            1,
+            n as isize,
+            false,
+            a.data.as_ptr(),
+            a.col_stride as isize,
+            a.row_stride as isize,
+            b.data.as_ptr(),
+            b.col_stride as isize,
+            b.row_stride as isize,
+            0.0,
+            1.0,
+            false,
+            false,
+            false,
+            parallelism,
+        );
+    }
+    c
+}
+
+/// Multiply-adds below which [`product`] stays on one thread.
+const PARALLEL_FLOPS: usize = 1 << 16;

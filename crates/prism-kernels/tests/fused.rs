@@ -5,12 +5,12 @@
 #![allow(deprecated)]
 
 use burn::module::Module;
-use burn::nn::PaddingConfig2d;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
+use burn::nn::{LinearConfig, PaddingConfig2d};
 use burn::tensor::{Device, Distribution, Tensor};
 use prism_kernels::{
-    Bf16Kernel, attention, conv2d, gelu, is_fused, is_fused_conv2d, layer_norm, matmul_bf16,
-    rms_norm, unfused,
+    Bf16Kernel, attention, conv2d, gelu, is_fused, is_fused_conv2d, layer_norm, linear,
+    matmul_bf16, rms_norm, unfused,
 };
 
 fn devices() -> [(&'static str, Device); 2] {
@@ -180,6 +180,44 @@ fn attention_takes_strided_inputs() {
         |[q, k, v]| unfused::attention(q.swap_dims(2, 3), k.swap_dims(2, 3), v.swap_dims(2, 3)),
         2e-5,
     );
+}
+
+/// `linear` against Burn's `Linear` on a 3D input, with and without bias and at a size that
+/// runs one thread and one that runs several: values, and the gradients of the input, the
+/// weight and the bias.
+#[test]
+fn linear_matches_burn() {
+    for (backend, device) in devices() {
+        device.seed(6);
+        let ad = device.clone().autodiff();
+        for ([b, t, k, n], bias) in [([2, 5, 7, 3], true), ([3, 70, 64, 96], false)] {
+            let name = format!("linear {k}->{n} on {backend}, bias {bias}");
+            let layer = LinearConfig::new(k, n).with_bias(bias).init(&ad);
+            let x = random([b, t, k], &ad).require_grad();
+            assert!(is_fused(&x), "{name}: the fused path must be taken");
+            let plain = layer.valid();
+            let err = max_diff(
+                linear(&plain, x.clone().inner()),
+                plain.forward(x.clone().inner()),
+            );
+            assert!(err < 1e-5, "{name}: forward differs by {err}");
+            let (ya, yb) = (linear(&layer, x.clone()), layer.forward(x.clone()));
+            let err = max_diff(ya.clone(), yb.clone());
+            assert!(err < 1e-5, "{name} (autodiff): forward differs by {err}");
+            let w = random(ya.dims(), &ad);
+            let (ga, gb) = ((ya * w.clone()).sum().backward(), (yb * w).sum().backward());
+            let err = max_diff(x.grad(&ga).unwrap(), x.grad(&gb).unwrap());
+            assert!(err < 1e-4, "{name}: dx differs by {err}");
+            let weight = layer.weight.val();
+            let err = max_diff(weight.grad(&ga).unwrap(), weight.grad(&gb).unwrap());
+            assert!(err < 1e-4, "{name}: dweight differs by {err}");
+            if let Some(bias) = &layer.bias {
+                let bias = bias.val();
+                let err = max_diff(bias.grad(&ga).unwrap(), bias.grad(&gb).unwrap());
+                assert!(err < 1e-4, "{name}: dbias differs by {err}");
+            }
+        }
+    }
 }
 
 /// The convolutions of the DPT head and of LPIPS's AlexNet (3 x 3 same, 11 x 11 with stride 4,

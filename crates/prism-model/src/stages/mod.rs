@@ -82,7 +82,8 @@ pub(crate) fn cast<const D: usize>(x: Tensor<D>, dtype: impl Into<DType>) -> Ten
 }
 
 /// `layer` on `x`, its product's operands rounded to bf16 when `bf16_products` (the blocks'
-/// bf16 on the CPU backends, see [`prism_kernels::linear_bf16`]), Burn's layer otherwise.
+/// bf16 on the CPU backends, see [`prism_kernels::linear_bf16`]), in f32 otherwise
+/// ([`prism_kernels::linear`]: the host kernel on the CPU backends, Burn's product elsewhere).
 pub(crate) fn linear<const D: usize>(
     layer: &Linear,
     x: Tensor<D>,
@@ -91,7 +92,7 @@ pub(crate) fn linear<const D: usize>(
     if bf16_products {
         prism_kernels::linear_bf16(layer, x)
     } else {
-        layer.forward(x)
+        prism_kernels::linear(layer, x)
     }
 }
 

@@ -1,10 +1,12 @@
-//! What the host convolution kernel saves: forward and backward of `prism_kernels::conv2d`
-//! against Burn's `Conv2d` on the same layer, at the shapes of the point branch's DPT head
-//! (trained: input, weight and bias gradients) and of LPIPS's AlexNet at 128 px (frozen: the
-//! input's gradient alone), batch 4, on flex.
+//! What the host kernels of the layers save: forward and backward of `prism_kernels::conv2d`
+//! and `prism_kernels::linear` against Burn's `Conv2d` and `Linear` on the same layer, on
+//! flex. The convolutions at the shapes of the point branch's DPT head (trained: input, weight
+//! and bias gradients) and of LPIPS's AlexNet at 128 px (frozen: the input's gradient alone),
+//! batch 4; the linear layers at the small config's blocks (4 sequences of 512 tokens, width
+//! 128: `qkv`, `out`, the MLP's two).
 //!
 //! ```bash
-//! cargo run --release --example conv_bench -- [--iters 9]
+//! cargo run --release --example layers_bench -- [--iters 9]
 //! ```
 //!
 //! Each row is the median of `--iters` runs of both, taking turns, after one warm-up each.
@@ -14,13 +16,40 @@ use std::time::Instant;
 use burn::module::Module;
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
+use burn::nn::{Linear, LinearConfig};
 use burn::tensor::{Device, Distribution, Tensor};
 
 /// One benchmark row: a layer on an input of `shape`, trained or frozen.
 struct Case {
     name: &'static str,
-    layer: Conv2d,
+    layer: Layer,
     shape: [usize; 4],
+}
+
+/// The layer of a row.
+enum Layer {
+    Conv(Conv2d),
+    Linear(Linear),
+}
+
+impl Layer {
+    /// The layer on `x` (`[B, C, H, W]`; a linear layer reads `[B, T, d]` as `[B, 1, T, d]`),
+    /// through prism's kernel or Burn's module.
+    fn run(&self, x: Tensor<4>, prism: bool) -> Tensor<4> {
+        match (self, prism) {
+            (Self::Conv(l), true) => prism_kernels::conv2d(l, x),
+            (Self::Conv(l), false) => l.forward(x),
+            (Self::Linear(l), true) => prism_kernels::linear(l, x),
+            (Self::Linear(l), false) => l.forward(x),
+        }
+    }
+
+    fn weight(&self) -> Tensor<4> {
+        match self {
+            Self::Conv(l) => l.weight.val(),
+            Self::Linear(l) => l.weight.val().unsqueeze(),
+        }
+    }
 }
 
 fn cases(device: &Device) -> Vec<Case> {
@@ -36,7 +65,16 @@ fn cases(device: &Device) -> Vec<Case> {
             .init(device)
             .no_grad()
     };
-    let case = |name, layer, shape| Case { name, layer, shape };
+    let case = |name, layer, shape| Case {
+        name,
+        layer: Layer::Conv(layer),
+        shape,
+    };
+    let linear = |name, i, o| Case {
+        name,
+        layer: Layer::Linear(LinearConfig::new(i, o).init(device)),
+        shape: [4, 1, 512, i],
+    };
     vec![
         case("DPT refine 32->32, 64x64", same(32, 32), [4, 32, 64, 64]),
         case("DPT head 32->16, 64x64", same(32, 16), [4, 32, 64, 64]),
@@ -57,6 +95,10 @@ fn cases(device: &Device) -> Vec<Case> {
             alexnet(192, 384, 3, 1, 1),
             [4, 192, 7, 7],
         ),
+        linear("block qkv 128->384, 4x512 tokens", 128, 384),
+        linear("block out 128->128, 4x512 tokens", 128, 128),
+        linear("block MLP in 128->512, 4x512 tokens", 128, 512),
+        linear("block MLP out 512->128, 4x512 tokens", 512, 128),
     ]
 }
 
@@ -71,20 +113,16 @@ fn main() {
     }
     let device = Device::flex().autodiff();
     device.seed(0);
-    println!("| layer, batch 4 | Burn's Conv2d (ms) | prism_kernels::conv2d (ms) | ratio |");
+    println!("| layer, batch 4 | Burn's module (ms) | prism_kernels (ms) | ratio |");
     println!("|---|---:|---:|---:|");
     for Case { name, layer, shape } in cases(&device) {
         let x = Tensor::<4>::random(shape, Distribution::Normal(0.0, 1.0), &device).require_grad();
         let run = |fused: bool| {
             let start = Instant::now();
-            let y = if fused {
-                prism_kernels::conv2d(&layer, x.clone())
-            } else {
-                layer.forward(x.clone())
-            };
+            let y = layer.run(x.clone(), fused);
             let grads = (y.clone() * y).sum().backward();
             let _ = x.grad(&grads).expect("x is tracked").into_data();
-            if let Some(dw) = layer.weight.val().grad(&grads) {
+            if let Some(dw) = layer.weight().grad(&grads) {
                 let _ = dw.into_data();
             }
             start.elapsed().as_secs_f64() * 1e3
