@@ -65,6 +65,34 @@ impl<'a> View<'a> {
 /// `dst (row-major lhs.rows x rhs.cols) = [dst +] scale * lhs rhs`, single-threaded (the
 /// callers parallelise: attention over heads and blocks, convolutions over images).
 pub(crate) fn matmul(dst: &mut [f32], accumulate: bool, lhs: View<'_>, rhs: View<'_>, scale: f32) {
+    gemm_into(dst, accumulate, lhs, rhs, scale, Parallelism::None);
+}
+
+/// The row-major `a b` through `gemm`, parallel over the threads when the product is large
+/// enough to pay for them.
+pub(crate) fn product(a: View<'_>, b: View<'_>) -> Vec<f32> {
+    let mut c = vec![0.0f32; a.rows * b.cols];
+    let parallelism = if a.rows * a.cols * b.cols >= PARALLEL_FLOPS {
+        Parallelism::Rayon(0)
+    } else {
+        Parallelism::None
+    };
+    gemm_into(&mut c, false, a, b, 1.0, parallelism);
+    c
+}
+
+/// Multiply-adds below which [`product`] stays on one thread.
+const PARALLEL_FLOPS: usize = 1 << 16;
+
+/// `dst = [dst +] scale * lhs rhs` through `gemm`, on `parallelism`'s threads.
+fn gemm_into(
+    dst: &mut [f32],
+    accumulate: bool,
+    lhs: View<'_>,
+    rhs: View<'_>,
+    scale: f32,
+    parallelism: Parallelism,
+) {
     assert_eq!(lhs.cols, rhs.rows, "matmul: inner sizes differ");
     assert_eq!(dst.len(), lhs.rows * rhs.cols, "matmul: output size");
     lhs.check();
@@ -91,51 +119,7 @@ pub(crate) fn matmul(dst: &mut [f32], accumulate: bool, lhs: View<'_>, rhs: View
             false,
             false,
             false,
-            Parallelism::None,
-        );
-    }
-}
-
-/// The row-major `a b` through `gemm`, parallel over the threads when the product is large
-/// enough to pay for them.
-pub(crate) fn product(a: View<'_>, b: View<'_>) -> Vec<f32> {
-    assert_eq!(a.cols, b.rows, "product: inner sizes differ");
-    a.check();
-    b.check();
-    let (m, k, n) = (a.rows, a.cols, b.cols);
-    let mut c = vec![0.0f32; m * n];
-    let parallelism = if m * n * k >= PARALLEL_FLOPS {
-        Parallelism::Rayon(0)
-    } else {
-        Parallelism::None
-    };
-    // SAFETY: the views were checked to lie inside their slices and `c` holds exactly `m x n`
-    // row-major values; gemm reads and writes nothing else.
-    unsafe {
-        gemm(
-            m,
-            n,
-            k,
-            c.as_mut_ptr(),
-            1,
-            n as isize,
-            false,
-            a.data.as_ptr(),
-            a.col_stride as isize,
-            a.row_stride as isize,
-            b.data.as_ptr(),
-            b.col_stride as isize,
-            b.row_stride as isize,
-            0.0,
-            1.0,
-            false,
-            false,
-            false,
             parallelism,
         );
     }
-    c
 }
-
-/// Multiply-adds below which [`product`] stays on one thread.
-const PARALLEL_FLOPS: usize = 1 << 16;
