@@ -108,7 +108,7 @@ fn main() {
     while let Some(flag) = args.next() {
         match (flag.as_str(), args.next()) {
             ("--iters", Some(n)) => iters = n.parse().expect("--iters N"),
-            _ => panic!("usage: conv_bench [--iters N]"),
+            _ => panic!("usage: layers_bench [--iters N]"),
         }
     }
     let device = Device::flex().autodiff();
