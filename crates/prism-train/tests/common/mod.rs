@@ -203,11 +203,14 @@ pub fn fine_tune_student(
 }
 
 /// One dataset for every test of a test binary (each is its own process): `subjects` subjects
-/// (one held out) at 32 px, written on first use.
+/// (one held out) at 32 px, written on first use under the target folder's scratch space
+/// (cargo's `CARGO_TARGET_TMPDIR`), which goes with the build, not in the system's `/tmp`,
+/// where a dataset per test process would stay behind.
 pub fn dataset_once(subjects: usize) -> PathBuf {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
-        let dir = std::env::temp_dir().join(format!("prism-train-tests-{}", std::process::id()));
+        let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
+            .join(format!("prism-train-tests-{}", std::process::id()));
         write_dataset(&dir, subjects, 32);
         dir
     })
