@@ -190,7 +190,8 @@ pub struct Wanted {
 }
 
 /// The gradients `(dx, dweight, dbias)` of [`forward`] for `dy`; those not [`Wanted`] are
-/// empty.
+/// empty. The weight and bias gradients sum the images' in their order, so a training step
+/// gives the same values whatever the threads do.
 pub fn backward(
     x: &[f32],
     weight: &[f32],
@@ -205,72 +206,51 @@ pub fn backward(
         d.batch * d.outputs * pixels,
         "conv: gradient size"
     );
-    let mut dx = vec![0.0f32; if wanted.input { x.len() } else { 0 }];
-    let zeros = || (vec![0.0f32; d.outputs * taps], vec![0.0f32; d.outputs]);
-    if pixels == 0 || taps == 0 {
-        let (dw, db) = if wanted.weight {
-            zeros()
-        } else {
-            Default::default()
-        };
-        return (dx, dw, db);
+    let mut dx = vec![0.0f32; x.len()];
+    let mut dw = vec![0.0f32; d.outputs * taps];
+    let mut db = vec![0.0f32; d.outputs];
+    if pixels > 0 && taps > 0 {
+        let w = View::rows(weight, d.outputs, taps);
+        // Per image: its input gradient in place, and its own weight and bias gradients.
+        let per_image: Vec<(Vec<f32>, Vec<f32>)> = dx
+            .par_chunks_mut(d.image().max(1))
+            .zip(x.par_chunks(d.image().max(1)))
+            .zip(dy.par_chunks(d.outputs * pixels))
+            .map_init(Vec::new, |cols, ((dx, x), dy)| {
+                let dy_view = View::rows(dy, d.outputs, pixels);
+                if wanted.input {
+                    if d.pointwise() {
+                        matmul(dx, false, w.t(), dy_view, 1.0);
+                    } else {
+                        cols.resize(taps * pixels, 0.0);
+                        matmul(cols, false, w.t(), dy_view, 1.0);
+                        col2im(cols, &d, dx);
+                    }
+                }
+                if !wanted.weight {
+                    return Default::default();
+                }
+                let cols = image_cols(x, &d, cols);
+                let mut dw = vec![0.0f32; d.outputs * taps];
+                let transposed = View::transposed(cols, pixels, taps);
+                matmul(&mut dw, false, dy_view, transposed, 1.0);
+                (
+                    dw,
+                    dy.chunks_exact(pixels).map(|r| r.iter().sum()).collect(),
+                )
+            })
+            .collect();
+        for (image_dw, image_db) in &per_image {
+            dw.iter_mut().zip(image_dw).for_each(|(a, b)| *a += b);
+            db.iter_mut().zip(image_db).for_each(|(a, b)| *a += b);
+        }
     }
-    let w = View::rows(weight, d.outputs, taps);
-    // Per image: its input gradient in place, its weight gradient summed over the images.
-    let per_image = |cols: &mut Vec<f32>, (dx, (x, dy)): (&mut [f32], (&[f32], &[f32]))| {
-        let dy_view = View::rows(dy, d.outputs, pixels);
-        let mut dw = Vec::new();
-        let mut db = Vec::new();
-        if wanted.weight {
-            let cols = image_cols(x, &d, cols);
-            dw = vec![0.0f32; d.outputs * taps];
-            matmul(
-                &mut dw,
-                false,
-                dy_view,
-                View::transposed(cols, pixels, taps),
-                1.0,
-            );
-            db = dy.chunks_exact(pixels).map(|r| r.iter().sum()).collect();
-        }
-        if wanted.input {
-            if d.pointwise() {
-                matmul(dx, false, w.t(), dy_view, 1.0);
-            } else {
-                cols.resize(taps * pixels, 0.0);
-                matmul(cols, false, w.t(), dy_view, 1.0);
-                col2im(cols, &d, dx);
-            }
-        }
-        (dw, db)
-    };
-    let add = |(mut a, mut b): (Vec<f32>, Vec<f32>), (c, e): (Vec<f32>, Vec<f32>)| {
-        if a.is_empty() {
-            return (c, e);
-        }
-        a.iter_mut().zip(&c).for_each(|(a, c)| *a += c);
-        b.iter_mut().zip(&e).for_each(|(b, e)| *b += e);
-        (a, b)
-    };
-    let images = x
-        .par_chunks(d.image())
-        .zip(dy.par_chunks(d.outputs * pixels));
-    let (dw, db) = if wanted.input {
-        dx.par_chunks_mut(d.image())
-            .zip(images)
-            .map_init(Vec::new, per_image)
-            .reduce(|| (Vec::new(), Vec::new()), add)
-    } else {
-        images
-            .map_init(Vec::new, |cols, pair| per_image(cols, (&mut [][..], pair)))
-            .reduce(|| (Vec::new(), Vec::new()), add)
-    };
-    let (dw, db) = if wanted.weight && dw.is_empty() {
-        zeros()
-    } else {
-        (dw, db)
-    };
-    (dx, dw, db)
+    let wanted_only = |v: Vec<f32>, wanted: bool| if wanted { v } else { Vec::new() };
+    (
+        wanted_only(dx, wanted.input),
+        wanted_only(dw, wanted.weight),
+        wanted_only(db, wanted.weight),
+    )
 }
 
 #[cfg(test)]

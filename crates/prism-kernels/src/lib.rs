@@ -183,8 +183,8 @@ pub fn is_fused_conv2d(layer: &Conv2d, x: &Tensor<4>) -> bool {
 /// when it does not (another backend or dtype, groups, dilation, asymmetric padding, or a
 /// kernel larger than the padded input).
 fn host_conv_padding(layer: &Conv2d, x: &Tensor<4>, weight: &Tensor<4>) -> Option<[usize; 2]> {
-    let [_, channels, height, width] = x.dims();
-    let [_, weight_channels, kh, kw] = weight.dims();
+    let [batch, channels, height, width] = x.dims();
+    let [outputs, weight_channels, kh, kw] = weight.dims();
     let plain = layer.groups == 1 && layer.dilation == [1, 1] && channels == weight_channels;
     if !is_fused(x) || weight.dtype() != DType::F32 || !plain {
         return None;
@@ -199,12 +199,16 @@ fn host_conv_padding(layer: &Conv2d, x: &Tensor<4>, weight: &Tensor<4>) -> Optio
         }
         _ => return None,
     };
-    let fits = |n: usize, p: usize, k: usize| n + 2 * p >= k;
-    (fits(height, padding[0], kh)
-        && fits(width, padding[1], kw)
-        && layer.stride[0] > 0
-        && layer.stride[1] > 0)
-        .then_some(padding)
+    let dims = conv::ConvDims {
+        batch,
+        channels,
+        outputs,
+        size: [height, width],
+        kernel: [kh, kw],
+        stride: layer.stride,
+        padding,
+    };
+    dims.output_size().map(|_| padding)
 }
 
 /// Softmax attention `softmax(q k^T / sqrt(d_h)) v` on `[B, H, T, d_h]` tensors of one shape.
