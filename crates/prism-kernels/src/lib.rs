@@ -35,7 +35,7 @@ pub mod device;
 mod elementwise;
 mod extension;
 mod host;
-mod math;
+pub mod math;
 mod matrix;
 mod norm;
 #[cfg(test)]

@@ -16,6 +16,8 @@
 //! `T_i = T_{i+1} / (1 - alpha_i)` and, with `B_i` the channels composited behind `i`
 //! (`B_{i-1} = alpha_i f_i + (1 - alpha_i) B_i`), `dout/dalpha_i = T_i (f_i - B_i)`.
 
+use multiversion::multiversion;
+use prism_kernels::math;
 use rayon::prelude::*;
 
 use super::project::Projected;
@@ -179,18 +181,45 @@ fn floor_near(x: f32) -> f32 {
 }
 
 /// The Gaussian's alpha at offset `(dx, dy)` from its centre, with `exp(-power)` and the
-/// unclamped `o exp(-power)`; `None` where it is skipped (outside 3 sigma, below 1/255).
-#[inline]
-fn alpha_at(p: &Projected, dx: f32, dy: f32) -> Option<(f32, f32, f32)> {
+/// unclamped `o exp(-power)`. The alpha is 0 where the pixel is skipped (outside 3 sigma, below
+/// 1/255, or a NaN power). Branch-free, so that [`SpanAlphas::of`] computes a row of them as
+/// vectors.
+#[inline(always)]
+fn alpha_at(p: &Projected, dx: f32, dy: f32) -> (f32, f32, f32) {
     let [a, b, c] = p.conic;
     let power = 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy;
-    if power.is_nan() || power > MAX_POWER {
-        return None;
-    }
-    let g = (-power).exp();
+    // Clamped, so that the lanes far outside the support do not reach the subnormals (each of
+    // which takes a microcode assist on Intel's cores); those lanes are not drawn anyway.
+    let g = math::exp(-power.min(2.0 * MAX_POWER));
     let raw = p.opacity * g;
     let alpha = raw.min(MAX_ALPHA);
-    (alpha >= MIN_ALPHA).then_some((alpha, g, raw))
+    // Both comparisons are false for a NaN.
+    let drawn = power <= MAX_POWER && alpha >= MIN_ALPHA;
+    (if drawn { alpha } else { 0.0 }, g, raw)
+}
+
+/// [`alpha_at`] for the pixels of one tile row from the span's first column on: lane `i` is
+/// column `first + i`. Lanes past the span are computed and not read.
+struct SpanAlphas {
+    alpha: [f32; TILE_SIZE],
+    gauss: [f32; TILE_SIZE],
+    raw: [f32; TILE_SIZE],
+}
+
+impl SpanAlphas {
+    /// `dx` is the first column's offset from the Gaussian's centre.
+    #[inline(always)]
+    fn of(p: &Projected, dx: f32, dy: f32) -> Self {
+        let mut s = Self {
+            alpha: [0.0; TILE_SIZE],
+            gauss: [0.0; TILE_SIZE],
+            raw: [0.0; TILE_SIZE],
+        };
+        for i in 0..TILE_SIZE {
+            (s.alpha[i], s.gauss[i], s.raw[i]) = alpha_at(p, dx + i as f32, dy);
+        }
+        s
+    }
 }
 
 /// The result of compositing one camera.
@@ -231,62 +260,15 @@ pub fn composite(
 ) -> Composited {
     let tiles = view.tiles_x() * view.tiles_y();
     let ch = channels + 2;
+    let scene = Scene {
+        projected,
+        features,
+        channels,
+        view,
+    };
     let outs: Vec<TileOut> = (0..tiles)
         .into_par_iter()
-        .map(|tile| {
-            let rect = tile_rect(tile, view);
-            let (x0, y0, tw, th) = rect;
-            let np = tw * th;
-            let mut acc = vec![0.0f32; np * ch];
-            let mut t = vec![1.0f32; np];
-            let mut n = vec![0u32; np];
-            let mut done = vec![false; np];
-            let mut live = np;
-            let mut fe = vec![0.0f32; ch];
-            for (k, &j) in lists.tile(tile).iter().enumerate() {
-                if live == 0 {
-                    break;
-                }
-                let j = j as usize;
-                let Some(p) = projected[j].as_ref() else {
-                    continue;
-                };
-                let Some([lx0, ly0, lx1, ly1]) = overlap(p, view, rect) else {
-                    continue;
-                };
-                channels_of(&mut fe, features, channels, j, p.depth);
-                let rows = RowSpans::of(p);
-                for ly in ly0..=ly1 {
-                    let dy = (y0 + ly) as f32 + 0.5 - p.v;
-                    let Some((sx0, sx1)) = rows.span(dy, x0, lx0, lx1) else {
-                        continue;
-                    };
-                    for lx in sx0..=sx1 {
-                        let idx = ly * tw + lx;
-                        if done[idx] {
-                            continue;
-                        }
-                        let dx = (x0 + lx) as f32 + 0.5 - p.u;
-                        let Some((alpha, _, _)) = alpha_at(p, dx, dy) else {
-                            continue;
-                        };
-                        let next = t[idx] * (1.0 - alpha);
-                        if next < MIN_TRANSMITTANCE {
-                            done[idx] = true;
-                            live -= 1;
-                            continue;
-                        }
-                        let w = alpha * t[idx];
-                        for (a, fc) in acc[idx * ch..(idx + 1) * ch].iter_mut().zip(&fe) {
-                            *a += w * fc;
-                        }
-                        t[idx] = next;
-                        n[idx] = k as u32 + 1;
-                    }
-                }
-            }
-            TileOut { acc, t, n }
-        })
+        .map(|tile| composite_tile(&scene, tile, lists.tile(tile)))
         .collect();
 
     let (w, h) = (view.width, view.height);
@@ -313,6 +295,73 @@ pub fn composite(
     out
 }
 
+/// What every tile of one camera reads: the projected Gaussians, their `[N, C]` features and
+/// the view.
+struct Scene<'a> {
+    projected: &'a [Option<Projected>],
+    features: &'a [f32],
+    channels: usize,
+    view: &'a View,
+}
+
+/// One tile of [`composite`]: its Gaussians (`list`, front to back) composited into its
+/// pixels. Compiled for AVX-512 and AVX2 too, chosen at run time, so that a row's alphas
+/// ([`SpanAlphas`]) and a pixel's channel sums run as vectors.
+#[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]
+fn composite_tile(scene: &Scene<'_>, tile: usize, list: &[u32]) -> TileOut {
+    let (view, channels) = (scene.view, scene.channels);
+    let ch = channels + 2;
+    let rect = tile_rect(tile, view);
+    let (x0, y0, tw, th) = rect;
+    let np = tw * th;
+    let mut acc = vec![0.0f32; np * ch];
+    let mut t = vec![1.0f32; np];
+    let mut n = vec![0u32; np];
+    let mut done = vec![false; np];
+    let mut live = np;
+    let mut fe = vec![0.0f32; ch];
+    for (k, &j) in list.iter().enumerate() {
+        if live == 0 {
+            break;
+        }
+        let j = j as usize;
+        let Some(p) = scene.projected[j].as_ref() else {
+            continue;
+        };
+        let Some([lx0, ly0, lx1, ly1]) = overlap(p, view, rect) else {
+            continue;
+        };
+        channels_of(&mut fe, scene.features, channels, j, p.depth);
+        let rows = RowSpans::of(p);
+        for ly in ly0..=ly1 {
+            let dy = (y0 + ly) as f32 + 0.5 - p.v;
+            let Some((sx0, sx1)) = rows.span(dy, x0, lx0, lx1) else {
+                continue;
+            };
+            let alphas = SpanAlphas::of(p, (x0 + sx0) as f32 + 0.5 - p.u, dy);
+            for (lx, &alpha) in (sx0..=sx1).zip(&alphas.alpha) {
+                let idx = ly * tw + lx;
+                if alpha == 0.0 || done[idx] {
+                    continue;
+                }
+                let next = t[idx] * (1.0 - alpha);
+                if next < MIN_TRANSMITTANCE {
+                    done[idx] = true;
+                    live -= 1;
+                    continue;
+                }
+                let w = alpha * t[idx];
+                for (a, fc) in acc[idx * ch..(idx + 1) * ch].iter_mut().zip(&fe) {
+                    *a += w * fc;
+                }
+                t[idx] = next;
+                n[idx] = k as u32 + 1;
+            }
+        }
+    }
+    TileOut { acc, t, n }
+}
+
 /// Per projected Gaussian, the number of gradient values the reverse pass accumulates:
 /// `u, v, depth, conic a, b, c, opacity`, then the `C` features.
 pub const GRAD_HEAD: usize = 7;
@@ -330,90 +379,16 @@ pub fn composite_backward(
     grad_image: &[f32],
 ) -> Vec<f32> {
     let tiles = view.tiles_x() * view.tiles_y();
-    let ch = channels + 2;
     let stride = GRAD_HEAD + channels;
-    let (w, h) = (view.width, view.height);
+    let scene = Scene {
+        projected,
+        features,
+        channels,
+        view,
+    };
     let per_tile: Vec<Vec<f32>> = (0..tiles)
         .into_par_iter()
-        .map(|tile| {
-            let list = lists.tile(tile);
-            let mut slots = vec![0.0f32; list.len() * stride];
-            let rect = tile_rect(tile, view);
-            let (x0, y0, tw, th) = rect;
-            let np = tw * th;
-            let mut t = vec![0.0f32; np];
-            let mut n = vec![0u32; np];
-            // Pixel-major, like the forward's tile: pixel `i`'s channels at `i * ch..`.
-            let mut g = vec![0.0f32; np * ch];
-            let mut behind = vec![0.0f32; np * ch];
-            let mut last = 0usize;
-            for ly in 0..th {
-                for lx in 0..tw {
-                    let (idx, pix) = (ly * tw + lx, (y0 + ly) * w + x0 + lx);
-                    t[idx] = forward.transmittance[pix];
-                    n[idx] = forward.contributors[pix];
-                    last = last.max(n[idx] as usize);
-                    for c in 0..ch {
-                        g[idx * ch + c] = grad_image[c * w * h + pix];
-                    }
-                }
-            }
-            let mut fe = vec![0.0f32; ch];
-            for k in (0..last).rev() {
-                let j = list[k] as usize;
-                let Some(p) = projected[j].as_ref() else {
-                    continue;
-                };
-                let Some([lx0, ly0, lx1, ly1]) = overlap(p, view, rect) else {
-                    continue;
-                };
-                channels_of(&mut fe, features, channels, j, p.depth);
-                let slot = &mut slots[k * stride..(k + 1) * stride];
-                let [a, b, c] = p.conic;
-                let rows = RowSpans::of(p);
-                for ly in ly0..=ly1 {
-                    let dy = (y0 + ly) as f32 + 0.5 - p.v;
-                    let Some((sx0, sx1)) = rows.span(dy, x0, lx0, lx1) else {
-                        continue;
-                    };
-                    for lx in sx0..=sx1 {
-                        let idx = ly * tw + lx;
-                        if k as u32 >= n[idx] {
-                            continue;
-                        }
-                        let dx = (x0 + lx) as f32 + 0.5 - p.u;
-                        let Some((alpha, gauss, raw)) = alpha_at(p, dx, dy) else {
-                            continue;
-                        };
-                        let tk = t[idx] / (1.0 - alpha);
-                        t[idx] = tk;
-                        let wk = alpha * tk;
-                        let gp = &g[idx * ch..(idx + 1) * ch];
-                        let bp = &mut behind[idx * ch..(idx + 1) * ch];
-                        let mut d_alpha = 0.0;
-                        for ((&fc, &gc), bc) in fe.iter().zip(gp).zip(bp.iter_mut()) {
-                            d_alpha += (fc - *bc) * gc;
-                            *bc = alpha * fc + (1.0 - alpha) * *bc;
-                        }
-                        d_alpha *= tk;
-                        for (s, &gc) in slot[GRAD_HEAD..].iter_mut().zip(&gp[..channels]) {
-                            *s += wk * gc;
-                        }
-                        slot[2] += wk * gp[channels + 1];
-                        if raw < MAX_ALPHA {
-                            slot[6] += gauss * d_alpha;
-                            let d_power = -alpha * d_alpha;
-                            slot[0] -= d_power * (a * dx + b * dy);
-                            slot[1] -= d_power * (b * dx + c * dy);
-                            slot[3] += 0.5 * dx * dx * d_power;
-                            slot[4] += dx * dy * d_power;
-                            slot[5] += 0.5 * dy * dy * d_power;
-                        }
-                    }
-                }
-            }
-            slots
-        })
+        .map(|tile| backward_tile(&scene, tile, lists.tile(tile), forward, grad_image))
         .collect();
 
     let mut grads = vec![0.0f32; projected.len() * stride];
@@ -429,6 +404,99 @@ pub fn composite_backward(
         }
     }
     grads
+}
+
+/// One tile of [`composite_backward`]: the gradient slots of its list's Gaussians, in list
+/// order. Compiled per CPU as [`composite_tile`] is.
+#[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]
+fn backward_tile(
+    scene: &Scene<'_>,
+    tile: usize,
+    list: &[u32],
+    forward: &Composited,
+    grad_image: &[f32],
+) -> Vec<f32> {
+    let (view, channels) = (scene.view, scene.channels);
+    let ch = channels + 2;
+    let stride = GRAD_HEAD + channels;
+    let (w, h) = (view.width, view.height);
+    let mut slots = vec![0.0f32; list.len() * stride];
+    let rect = tile_rect(tile, view);
+    let (x0, y0, tw, th) = rect;
+    let np = tw * th;
+    let mut t = vec![0.0f32; np];
+    let mut n = vec![0u32; np];
+    // Pixel-major, like the forward's tile: pixel `i`'s channels at `i * ch..`.
+    let mut g = vec![0.0f32; np * ch];
+    let mut behind = vec![0.0f32; np * ch];
+    let mut last = 0usize;
+    for ly in 0..th {
+        for lx in 0..tw {
+            let (idx, pix) = (ly * tw + lx, (y0 + ly) * w + x0 + lx);
+            t[idx] = forward.transmittance[pix];
+            n[idx] = forward.contributors[pix];
+            last = last.max(n[idx] as usize);
+            for c in 0..ch {
+                g[idx * ch + c] = grad_image[c * w * h + pix];
+            }
+        }
+    }
+    let mut fe = vec![0.0f32; ch];
+    for k in (0..last).rev() {
+        let j = list[k] as usize;
+        let Some(p) = scene.projected[j].as_ref() else {
+            continue;
+        };
+        let Some([lx0, ly0, lx1, ly1]) = overlap(p, view, rect) else {
+            continue;
+        };
+        channels_of(&mut fe, scene.features, channels, j, p.depth);
+        let slot = &mut slots[k * stride..(k + 1) * stride];
+        let [a, b, c] = p.conic;
+        let rows = RowSpans::of(p);
+        for ly in ly0..=ly1 {
+            let dy = (y0 + ly) as f32 + 0.5 - p.v;
+            let Some((sx0, sx1)) = rows.span(dy, x0, lx0, lx1) else {
+                continue;
+            };
+            let dx0 = (x0 + sx0) as f32 + 0.5 - p.u;
+            let alphas = SpanAlphas::of(p, dx0, dy);
+            for (i, lx) in (sx0..=sx1).enumerate() {
+                let idx = ly * tw + lx;
+                let alpha = alphas.alpha[i];
+                if alpha == 0.0 || k as u32 >= n[idx] {
+                    continue;
+                }
+                let (gauss, raw) = (alphas.gauss[i], alphas.raw[i]);
+                let dx = dx0 + i as f32;
+                let tk = t[idx] / (1.0 - alpha);
+                t[idx] = tk;
+                let wk = alpha * tk;
+                let gp = &g[idx * ch..(idx + 1) * ch];
+                let bp = &mut behind[idx * ch..(idx + 1) * ch];
+                let mut d_alpha = 0.0;
+                for ((&fc, &gc), bc) in fe.iter().zip(gp).zip(bp.iter_mut()) {
+                    d_alpha += (fc - *bc) * gc;
+                    *bc = alpha * fc + (1.0 - alpha) * *bc;
+                }
+                d_alpha *= tk;
+                for (s, &gc) in slot[GRAD_HEAD..].iter_mut().zip(&gp[..channels]) {
+                    *s += wk * gc;
+                }
+                slot[2] += wk * gp[channels + 1];
+                if raw < MAX_ALPHA {
+                    slot[6] += gauss * d_alpha;
+                    let d_power = -alpha * d_alpha;
+                    slot[0] -= d_power * (a * dx + b * dy);
+                    slot[1] -= d_power * (b * dx + c * dy);
+                    slot[3] += 0.5 * dx * dx * d_power;
+                    slot[4] += dx * dy * d_power;
+                    slot[5] += 0.5 * dy * dy * d_power;
+                }
+            }
+        }
+    }
+    slots
 }
 
 #[cfg(test)]
@@ -489,7 +557,7 @@ mod tests {
             for y in 0..64usize {
                 for x in 0..64usize {
                     let (dx, dy) = (x as f32 + 0.5 - p.u, y as f32 + 0.5 - p.v);
-                    if alpha_at(&p, dx, dy).is_some() {
+                    if alpha_at(&p, dx, dy).0 > 0.0 {
                         drawn += 1;
                         let [x0, y0, x1, y1] = rect.expect("a drawn pixel outside an empty box");
                         assert!(
@@ -529,7 +597,7 @@ mod tests {
                 for x0 in (0..4).map(|t| t * TILE_SIZE) {
                     let span = RowSpans::of(&p).span(dy, x0, 0, TILE_SIZE - 1);
                     for lx in 0..TILE_SIZE {
-                        if alpha_at(&p, (x0 + lx) as f32 + 0.5 - p.u, dy).is_some() {
+                        if alpha_at(&p, (x0 + lx) as f32 + 0.5 - p.u, dy).0 > 0.0 {
                             drawn += 1;
                             let (a, b) = span.expect("a drawn pixel in a rejected row");
                             assert!(a <= lx && lx <= b, "{x0} + {lx} outside {a}..={b}");
