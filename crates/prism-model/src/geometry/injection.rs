@@ -82,7 +82,7 @@ impl ZeroConv {
             "Conv_zero expects {} channels",
             self.channels
         );
-        self.linear.forward(patchify(x, patch_size))
+        prism_kernels::linear(&self.linear, patchify(x, patch_size))
     }
 }
 

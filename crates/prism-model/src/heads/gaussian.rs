@@ -50,6 +50,7 @@ use burn::tensor::activation::{sigmoid, softplus};
 use burn::tensor::ops::{GridSampleOptions, GridSamplePaddingMode};
 use burn::tensor::{Device, Tensor, TensorData};
 use prism_core::axes::permute;
+use prism_kernels::linear;
 use prism_render::splat::{GaussianCloud, Gaussians, background, render};
 use serde::{Deserialize, Serialize};
 
@@ -290,7 +291,7 @@ impl GaussianHead {
         } = source;
         let [_, _, hs, ws] = source_rays.dims();
         let raw = head_map(
-            self.linear.forward(self.norm.forward(source_tokens)),
+            linear(&self.linear, self.norm.forward(source_tokens)),
             GAUSSIAN_CHANNELS,
             hs,
             ws,

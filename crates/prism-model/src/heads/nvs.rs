@@ -13,6 +13,7 @@ use burn::module::Module;
 use burn::nn::{Initializer, LayerNorm, LayerNormConfig, Linear, LinearConfig};
 use burn::tensor::activation::{gelu, sigmoid};
 use burn::tensor::{Device, Tensor};
+use prism_kernels::linear;
 
 use serde::{Deserialize, Serialize};
 
@@ -147,12 +148,10 @@ impl NvsHead {
     ) -> Tensor<4> {
         let mut tokens = self.norm.forward(target_tokens);
         if let (Some(input), Some(render)) = (&self.render_input, &render) {
-            let seen = input
-                .embed
-                .forward(patchify(render.clone(), self.patch_size));
-            tokens = gelu(input.hidden.forward(tokens + seen));
+            let seen = linear(&input.embed, patchify(render.clone(), self.patch_size));
+            tokens = gelu(linear(&input.hidden, tokens + seen));
         }
-        let patches = self.linear.forward(tokens);
+        let patches = linear(&self.linear, tokens);
         match self.output {
             NvsOutput::Direct => sigmoid(head_map(
                 patches,

@@ -79,12 +79,12 @@ impl Tokenizer {
     /// Plücker rays `[B, 6, H, W]`.
     pub fn source_tokens(&self, image: Tensor<4>, rays: Tensor<4>) -> Tensor<3> {
         let pixels = Tensor::cat(vec![image * 2.0 - 1.0, rays], 1);
-        self.source.forward(patchify(pixels, self.patch_size))
+        prism_kernels::linear(&self.source, patchify(pixels, self.patch_size))
     }
 
     /// Target tokens `q`: `[B, (H/p)(W/p), d]` from the target Plücker rays `[B, 6, H, W]`.
     pub fn target_tokens(&self, rays: Tensor<4>) -> Tensor<3> {
-        self.target.forward(patchify(rays, self.patch_size))
+        prism_kernels::linear(&self.target, patchify(rays, self.patch_size))
     }
 
     /// `T_in = LN([x, q])`: `[B, T_s + T_t, d]`, source tokens first.

@@ -167,9 +167,11 @@ pub(crate) fn resize(x: Tensor<4>, height: usize, width: usize) -> Tensor<4> {
     let x = if width == w {
         x
     } else {
-        x.reshape([b * c * h, w])
-            .matmul(upsampling_matrix(w, width / w, &device))
-            .reshape([b, c, h, width])
+        prism_kernels::matmul(
+            x.reshape([b * c * h, w]),
+            upsampling_matrix(w, width / w, &device),
+        )
+        .reshape([b, c, h, width])
     };
     if height == h {
         return x;
@@ -220,7 +222,7 @@ impl DptHead {
             .enumerate()
             .map(|(k, (tokens, linear))| {
                 let f = self.factors[k];
-                shuffle(linear.forward(tokens.clone()), c, f, h, w)
+                shuffle(prism_kernels::linear(linear, tokens.clone()), c, f, h, w)
             })
             .collect();
         let mut maps = maps.into_iter().rev();

@@ -41,7 +41,7 @@ use prism_body::rodrigues;
 use prism_body::{BodyLayer, BodyModel};
 use prism_core::Camera;
 use prism_data::batch::BodyTensors;
-use prism_kernels::gelu;
+use prism_kernels::{gelu, linear};
 use prism_render::mesh::{FragmentMaps, rasterize_maps};
 use prism_render::triplane::sample_triplane;
 
@@ -274,10 +274,10 @@ impl SmplxBranch {
         source_tokens: Tensor<3>,
     ) -> (Tensor<2>, Tensor<4>, Tensor<2>, Tensor<2>) {
         let [b, _, _] = source_tokens.dims();
-        let a = gelu(
-            self.adapter
-                .forward(self.adapter_norm.forward(source_tokens)),
-        );
+        let a = gelu(linear(
+            &self.adapter,
+            self.adapter_norm.forward(source_tokens),
+        ));
         let [_, _, h] = a.dims();
         let logits = a
             .clone()
