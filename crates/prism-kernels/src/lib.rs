@@ -152,6 +152,31 @@ fn with_bias<const D: usize>(layer: &Linear, y: Tensor<D>) -> Tensor<D> {
     }
 }
 
+/// `w x_b + bias` for every `x_b` of `x` `[B, C, N]`, with `w` `[O, C]` and `bias` `[O]`: a
+/// linear map of each column's channels (a per-pixel linear layer on channel-first maps, or an
+/// interpolation along one axis), giving `[B, O, N]`. On f32 tensors of the CPU backends: a
+/// 1 x 1 convolution on the host kernel (one autodiff node whose forward and backward are
+/// `gemm`s on the tensors as they lie, no transposed copies). Elsewhere: Burn's batched matmul.
+pub fn matmul_left(w: Tensor<2>, x: Tensor<3>, bias: Option<Tensor<1>>) -> Tensor<3> {
+    let ([b, c, n], [o, _]) = (x.dims(), w.dims());
+    if !is_fused(&x) || w.dtype() != DType::F32 {
+        let y = w.unsqueeze::<3>().matmul(x);
+        return match bias {
+            Some(bias) => y + bias.reshape([1, o, 1]),
+            None => y,
+        };
+    }
+    let bias = bias.unwrap_or_else(|| Tensor::zeros([o], &x.device()));
+    let y: Tensor<4> = Tensor::from_dispatch(<Dispatch as FusedOps>::fused_conv2d(
+        x.reshape([b, c, 1, n]).into_dispatch(),
+        w.reshape([o, c, 1, 1]).into_dispatch(),
+        bias.into_dispatch(),
+        [1, 1],
+        [0, 0],
+    ));
+    y.reshape([b, o, n])
+}
+
 /// A `Conv2d` layer on `x` `[B, C, H, W]`. On f32 tensors of the CPU backends, for groups 1,
 /// dilation 1 and symmetric padding: the host kernel, one autodiff node whose products (im2col
 /// and `gemm`, forward and backward) replace Burn's convolutions there, which are slow for the

@@ -10,7 +10,7 @@ use burn::nn::{LinearConfig, PaddingConfig2d};
 use burn::tensor::{Device, Distribution, Tensor};
 use prism_kernels::{
     Bf16Kernel, attention, conv2d, gelu, is_fused, is_fused_conv2d, layer_norm, linear,
-    matmul_bf16, rms_norm, unfused,
+    matmul_bf16, matmul_left, rms_norm, unfused,
 };
 
 fn devices() -> [(&'static str, Device); 2] {
@@ -213,6 +213,48 @@ fn linear_matches_burn() {
             assert!(err < 1e-4, "{name}: dweight differs by {err}");
             if let Some(bias) = &layer.bias {
                 let bias = bias.val();
+                let err = max_diff(bias.grad(&ga).unwrap(), bias.grad(&gb).unwrap());
+                assert!(err < 1e-4, "{name}: dbias differs by {err}");
+            }
+        }
+    }
+}
+
+/// `matmul_left` (`w x_b + bias` per batch item) against Burn's batched matmul, on ndarray and
+/// flex: values, and the gradients of `x`, `w` and the bias; and with a constant `w` and no
+/// bias (the DPT's upsampling along the height).
+#[test]
+fn matmul_left_matches_burn() {
+    for (backend, device) in devices() {
+        device.seed(8);
+        let ad = device.clone().autodiff();
+        for ([b, c, n, o], tracked) in [([2, 5, 7, 3], true), ([3, 16, 130, 32], false)] {
+            let name = format!("matmul_left {c}->{o} on {backend}, tracked w {tracked}");
+            let x = random([b, c, n], &ad).require_grad();
+            assert!(is_fused(&x), "{name}: the fused path must be taken");
+            let (w, bias) = (random([o, c], &ad), random([o], &ad));
+            let (w, bias) = if tracked {
+                (w.require_grad(), Some(bias.require_grad()))
+            } else {
+                (w, None)
+            };
+            let ya = matmul_left(w.clone(), x.clone(), bias.clone());
+            let yb = w.clone().unsqueeze::<3>().matmul(x.clone());
+            let yb = match &bias {
+                Some(bias) => yb + bias.clone().reshape([1, o, 1]),
+                None => yb,
+            };
+            assert_eq!(ya.dims(), [b, o, n], "{name}: shape");
+            let err = max_diff(ya.clone(), yb.clone());
+            assert!(err < 1e-5, "{name}: forward differs by {err}");
+            let g = random([b, o, n], &ad);
+            let (ga, gb) = ((ya * g.clone()).sum().backward(), (yb * g).sum().backward());
+            let err = max_diff(x.grad(&ga).unwrap(), x.grad(&gb).unwrap());
+            assert!(err < 1e-4, "{name}: dx differs by {err}");
+            if tracked {
+                let err = max_diff(w.grad(&ga).unwrap(), w.grad(&gb).unwrap());
+                assert!(err < 1e-4, "{name}: dw differs by {err}");
+                let bias = bias.unwrap();
                 let err = max_diff(bias.grad(&ga).unwrap(), bias.grad(&gb).unwrap());
                 assert!(err < 1e-4, "{name}: dbias differs by {err}");
             }

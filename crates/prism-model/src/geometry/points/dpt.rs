@@ -176,28 +176,22 @@ pub(crate) fn resize(x: Tensor<4>, height: usize, width: usize) -> Tensor<4> {
     if height == h {
         return x;
     }
-    upsampling_matrix(h, height / h, &device)
-        .transpose()
-        .unsqueeze::<3>()
-        .matmul(x.reshape([b * c, h, width]))
-        .reshape([b, c, height, width])
+    prism_kernels::matmul_left(
+        upsampling_matrix(h, height / h, &device).transpose(),
+        x.reshape([b * c, h, width]),
+        None,
+    )
+    .reshape([b, c, height, width])
 }
 
 /// A per-pixel linear layer on `[B, C, H, W]`: `W^T x` over the channels of every pixel,
 /// one matrix product on the channel-first layout (no permutation copies at full resolution).
 fn per_pixel(linear: &Linear, x: Tensor<4>) -> Tensor<4> {
     let [b, c, h, w] = x.dims();
-    let weight = linear.weight.val();
-    let out = weight.dims()[1];
-    let y = weight
-        .transpose()
-        .unsqueeze::<3>()
-        .matmul(x.reshape([b, c, h * w]));
-    let y = match &linear.bias {
-        Some(bias) => y + bias.val().reshape([1, out, 1]),
-        None => y,
-    };
-    y.reshape([b, out, h, w])
+    let weight = linear.weight.val().transpose();
+    let out = weight.dims()[0];
+    let bias = linear.bias.as_ref().map(|bias| bias.val());
+    prism_kernels::matmul_left(weight, x.reshape([b, c, h * w]), bias).reshape([b, out, h, w])
 }
 
 impl DptHead {
