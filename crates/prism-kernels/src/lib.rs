@@ -7,9 +7,10 @@
 //! backward, vectorised for AVX-512 / AVX2 (chosen at run time) and split over threads;
 //! attention runs block by block over the queries with `gemm` (FlashAttention's scheme).
 //!
-//! The blocks' matrix products ([`linear`], [`matmul`]) and the heads' and LPIPS's convolutions
-//! ([`conv2d`], im2col and `gemm`) are one node each too, their outputs written once by
-//! `gemm`.
+//! The blocks' and heads' matrix products ([`linear`], [`matmul`], [`matmul_left`]) and the
+//! heads' and LPIPS's convolutions ([`conv2d`], im2col and `gemm`) are one node each too, their
+//! outputs written once by `gemm`. [`math`] holds the branch-free `exp` and `erf` they share
+//! with the host rasteriser.
 //!
 //! `--precision bf16` on the CPU runs the blocks' matrix products through [`matmul_bf16`]:
 //! operands rounded to bf16, products summed in f32, with AMX's tiles or AVX512-BF16's
