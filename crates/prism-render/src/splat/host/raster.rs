@@ -306,7 +306,7 @@ struct Scene<'a> {
 
 /// One tile of [`composite`]: its Gaussians (`list`, front to back) composited into its
 /// pixels. Compiled for AVX-512 and AVX2 too, chosen at run time, so that a row's alphas
-/// ([`SpanAlphas`]) and a pixel's channel sums run as vectors.
+/// ([`SpanAlphas`]) run as vectors.
 #[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]
 fn composite_tile(scene: &Scene<'_>, tile: usize, list: &[u32]) -> TileOut {
     let (view, channels) = (scene.view, scene.channels);
