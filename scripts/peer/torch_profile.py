@@ -4,7 +4,10 @@ side of BENCHMARKS' per-op tables (prism's side is `perf record` of `prism bench
 
 usage (from the repository root, with a Python that has torch):
     python scripts/peer/torch_profile.py [--model teacher] [--res 256] [--dtype bf16]
-        [--iters 20] [--threads 2] [--rows 15]
+        [--iters 20] [--threads 2] [--rows 15] [--train]
+
+With --train it profiles the teacher's training step instead (forward, MSE, backward and AdamW,
+as `torch_backbone.py --train` times it).
 """
 import argparse
 import os
@@ -25,6 +28,7 @@ def main():
     ap.add_argument("--iters", type=int, default=20)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--rows", type=int, default=15)
+    ap.add_argument("--train", action="store_true", help="profile the training step")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
     torch.manual_seed(0)
@@ -40,13 +44,24 @@ def main():
         with torch.inference_mode(), dev.autocast():
             model(image, *rays)
 
+    if a.train:
+        target = torch.rand(1, 3, a.res, a.res)
+        opt = torch.optim.AdamW(model.parameters(), lr=1e-4, weight_decay=1e-5)
+
+        def forward():  # noqa: F811 (the step replaces the forward)
+            opt.zero_grad(set_to_none=True)
+            with dev.autocast():
+                loss = torch.nn.functional.mse_loss(model(image, *rays), target)
+            loss.backward()
+            opt.step()
+
     for _ in range(3):
         forward()
     with profile(activities=[ProfilerActivity.CPU]) as prof:
         for _ in range(a.iters):
             forward()
     total = sum(e.self_cpu_time_total for e in prof.key_averages())
-    print(f"{a.model} {a.res} px {a.dtype}: {total / 1e3 / a.iters:.1f} ms of self CPU time a forward")
+    print(f"{a.model} {a.res} px {a.dtype}: {total / 1e3 / a.iters:.1f} ms of self CPU time a {'step' if a.train else 'forward'}")
     print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=a.rows))
 
 

@@ -9,9 +9,12 @@ use burn::backend::autodiff::checkpoint::{base::Checkpointer, strategy::Checkpoi
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind, unary};
 use burn::backend::tensor::FloatTensor;
-use burn::backend::{Autodiff, Backend, Flex, NdArray, TensorMetadata, backend_extension};
+use burn::backend::{
+    Autodiff, AutodiffBackend, Backend, Flex, NdArray, TensorMetadata, backend_extension,
+};
 use burn::tensor::Shape;
 
+use crate::adamw::{self, AdamWStep};
 use crate::attention::{self, Dims};
 use crate::bf16::{self, Bf16Kernel};
 use crate::conv::{self, ConvDims, Wanted};
@@ -61,6 +64,16 @@ pub trait FusedOps: Backend {
         stride: [usize; 2],
         padding: [usize; 2],
     ) -> FloatTensor<Self>;
+    /// One AdamW step of a parameter: `(param, moment_1, moment_2)` after `grad` (see
+    /// [`adamw::step`]; the moments are ignored at `step.time == 1`). Untracked: an optimizer
+    /// works on the parameters' values.
+    fn fused_adamw(
+        param: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        moment_1: FloatTensor<Self>,
+        moment_2: FloatTensor<Self>,
+        step: AdamWStep,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
 }
 
 /// GELU through the host kernel.
@@ -267,6 +280,26 @@ fn conv_forward<B: HostTensors>(
     B::tensor(y, Shape::from(vec![d.batch, d.outputs, h, w]), &device)
 }
 
+/// One AdamW step through the host kernel, in place where the backend lends the parameter's and
+/// moments' values mutably (see [`HostTensors::update`]).
+fn adamw_step<B: HostTensors>(
+    param: FloatTensor<B>,
+    grad: FloatTensor<B>,
+    moment_1: FloatTensor<B>,
+    moment_2: FloatTensor<B>,
+    step: AdamWStep,
+) -> (FloatTensor<B>, FloatTensor<B>, FloatTensor<B>) {
+    let grad = B::values(grad);
+    let (mut m_out, mut v_out) = (None, None);
+    let param = B::update(param, |p| {
+        m_out = Some(B::update(moment_1, |m| {
+            v_out = Some(B::update(moment_2, |v| adamw::step(p, m, v, &grad, step)));
+        }));
+    });
+    let both = "the update closures ran";
+    (param, m_out.expect(both), v_out.expect(both))
+}
+
 /// The concrete CPU backends: the host kernels directly.
 macro_rules! host_fused_ops {
     ($backend:ty) => {
@@ -316,6 +349,16 @@ macro_rules! host_fused_ops {
                 padding: [usize; 2],
             ) -> FloatTensor<Self> {
                 conv_forward::<Self>(x, weight, bias, stride, padding)
+            }
+
+            fn fused_adamw(
+                param: FloatTensor<Self>,
+                grad: FloatTensor<Self>,
+                moment_1: FloatTensor<Self>,
+                moment_2: FloatTensor<Self>,
+                step: AdamWStep,
+            ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
+                adamw_step::<Self>(param, grad, moment_1, moment_2, step)
             }
         }
     };
@@ -535,6 +578,27 @@ impl<B: HostTensors, C: CheckpointStrategy> FusedOps for Autodiff<B, C> {
                 prep.finish(conv_forward::<B>(x, weight, bias, stride, padding))
             }
         }
+    }
+
+    fn fused_adamw(
+        param: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        moment_1: FloatTensor<Self>,
+        moment_2: FloatTensor<Self>,
+        step: AdamWStep,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
+        let (p, m, v) = adamw_step::<B>(
+            param.into_primitive(),
+            grad.into_primitive(),
+            moment_1.into_primitive(),
+            moment_2.into_primitive(),
+            step,
+        );
+        (
+            Self::from_inner(p),
+            Self::from_inner(m),
+            Self::from_inner(v),
+        )
     }
 }
 

@@ -28,6 +28,7 @@
 //! and the composition of Burn ops in [`unfused`] otherwise (GPU backends, half precision on
 //! the CPU), so a model calls them on every backend.
 
+mod adamw;
 mod attention;
 mod bf16;
 mod conv;
@@ -48,6 +49,7 @@ use burn::nn::conv::Conv2d;
 use burn::nn::{Linear, PaddingConfig2d};
 use burn::tensor::{DType, Device, Tensor};
 
+pub use adamw::AdamWStep;
 pub use bf16::Bf16Kernel;
 pub use extension::FusedOps;
 
@@ -255,6 +257,37 @@ pub fn attention(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
 /// other kernels, the f32 kernel. Elsewhere, as [`attention`].
 pub fn attention_bf16(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
     attention_in(q, k, v, true)
+}
+
+/// One AdamW step of a parameter's values on the host kernel: `(param, moment_1, moment_2)`
+/// after `grad`, Burn's `AdamW` arithmetic in one pass over memory instead of about fifteen
+/// (see [`AdamWStep`]). `moments` is `None` at a parameter's first step. For tensors that
+/// [`is_fused`] takes (f32 on a CPU backend); the caller runs Burn's optimizer on others.
+pub fn adamw_step<const D: usize>(
+    param: Tensor<D>,
+    grad: Tensor<D>,
+    moments: Option<(Tensor<D>, Tensor<D>)>,
+    step: AdamWStep,
+) -> (Tensor<D>, Tensor<D>, Tensor<D>) {
+    assert!(
+        is_fused(&param) && is_fused(&grad),
+        "adamw_step takes f32 tensors on a CPU backend"
+    );
+    // At the first step the kernel ignores the moments: zero-sized stand-ins would do, but the
+    // sizes are checked, so they are the parameter's (its gradient's own buffer is not reused).
+    let (m, v) = moments.unwrap_or_else(|| (param.zeros_like(), param.zeros_like()));
+    let (p, m, v) = <Dispatch as FusedOps>::fused_adamw(
+        param.into_dispatch(),
+        grad.into_dispatch(),
+        m.into_dispatch(),
+        v.into_dispatch(),
+        step,
+    );
+    (
+        Tensor::from_dispatch(p),
+        Tensor::from_dispatch(m),
+        Tensor::from_dispatch(v),
+    )
 }
 
 /// [`attention`], its fused host kernel taking bf16 products when `bf16`.

@@ -27,6 +27,7 @@
 //! - Training curves: [`plot_run`] draws a run's `metrics.jsonl` into its [`PLOT_FILE`].
 
 pub mod ablate;
+pub mod adamw;
 pub mod baselines;
 pub mod budget;
 pub mod cadence;

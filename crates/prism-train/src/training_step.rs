@@ -8,8 +8,8 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use burn::optim::ModuleOptimizer;
 use burn::optim::lr_scheduler::module_lr_scheduler::ModuleLrScheduler;
-use burn::optim::{AdamWConfig, ModuleOptimizer};
 use burn::tensor::Device;
 use prism_core::BackendKind;
 use prism_data::{PrismBatch, PrismBatcher};
@@ -17,6 +17,7 @@ use prism_model::{Precision, Prism};
 use prism_remote::ShardRequest;
 use serde_json::Value;
 
+use crate::adamw::FusedAdamW;
 use crate::checkpoint::{
     CHECKPOINT_FORMAT, CHECKPOINT_VERSION, Checkpoint, CheckpointContents, CheckpointState,
     save_checkpoint,
@@ -159,12 +160,12 @@ impl<'a> TrainingStep<'a> {
     ) -> Result<Self> {
         let train = &config.train;
         let total = train.steps;
-        let mut optimizer = AdamWConfig::new()
-            .with_beta_1(ADAM_BETA_1)
-            .with_beta_2(ADAM_BETA_2)
-            .with_epsilon(ADAM_EPSILON)
-            .with_weight_decay(train.weight_decay as f32)
-            .init();
+        let mut optimizer = FusedAdamW::module_optimizer(
+            ADAM_BETA_1,
+            ADAM_BETA_2,
+            ADAM_EPSILON,
+            train.weight_decay as f32,
+        );
         let backbone =
             WarmupCosine::new(train.lr_backbone, train.min_lr, train.warmup_steps, total);
         let heads = WarmupCosine::new(train.lr_heads, train.min_lr, train.warmup_steps, total);
