@@ -69,15 +69,23 @@ pub(crate) fn matmul(dst: &mut [f32], accumulate: bool, lhs: View<'_>, rhs: View
 }
 
 /// The row-major `a b` through `gemm`, parallel over the threads when the product is large
-/// enough to pay for them.
+/// enough to pay for them. The output is written once: it is not zeroed first (`gemm` without
+/// accumulation reads none of it), which on the training step was a serial `memset` of every
+/// product's output.
 pub(crate) fn product(a: View<'_>, b: View<'_>) -> Vec<f32> {
-    let mut c = vec![0.0f32; a.rows * b.cols];
+    let len = a.rows * b.cols;
     let parallelism = if a.rows * a.cols * b.cols >= PARALLEL_FLOPS {
         Parallelism::Rayon(0)
     } else {
         Parallelism::None
     };
-    gemm_into(&mut c, false, a, b, 1.0, parallelism);
+    let mut c = Vec::with_capacity(len);
+    // SAFETY: `c` has room for the `m x n` values; `gemm` without accumulation writes every one
+    // of them and reads none, so all `len` are initialised when the length is set.
+    unsafe {
+        gemm_raw(c.as_mut_ptr(), false, a, b, 1.0, parallelism);
+        c.set_len(len);
+    }
     c
 }
 
@@ -93,18 +101,36 @@ fn gemm_into(
     scale: f32,
     parallelism: Parallelism,
 ) {
-    assert_eq!(lhs.cols, rhs.rows, "matmul: inner sizes differ");
     assert_eq!(dst.len(), lhs.rows * rhs.cols, "matmul: output size");
+    // SAFETY: `dst` holds exactly `m x n` initialised values.
+    unsafe { gemm_raw(dst.as_mut_ptr(), accumulate, lhs, rhs, scale, parallelism) }
+}
+
+/// [`gemm_into`] on a raw destination.
+///
+/// # Safety
+/// `dst` is valid for writes of `lhs.rows x rhs.cols` values (row-major), and for reads of as
+/// many initialised ones when `accumulate`.
+unsafe fn gemm_raw(
+    dst: *mut f32,
+    accumulate: bool,
+    lhs: View<'_>,
+    rhs: View<'_>,
+    scale: f32,
+    parallelism: Parallelism,
+) {
+    assert_eq!(lhs.cols, rhs.rows, "matmul: inner sizes differ");
     lhs.check();
     rhs.check();
-    // SAFETY: the views were checked to lie inside their slices and `dst` holds exactly
-    // `m x n` row-major values; gemm reads and writes nothing else.
+    // SAFETY: the views were checked to lie inside their slices, and the caller vouches for
+    // `dst`'s `m x n` row-major values; gemm reads and writes nothing else, and reads `dst`
+    // only when `accumulate`.
     unsafe {
         gemm(
             lhs.rows,
             rhs.cols,
             lhs.cols,
-            dst.as_mut_ptr(),
+            dst,
             1,
             rhs.cols as isize,
             accumulate,
