@@ -233,6 +233,7 @@ impl TrainingConfig {
             ("losses.nvs_holes", l.nvs_holes),
             ("losses.gs_centres", l.gs_centres),
             ("losses.gs_spread", l.gs_spread),
+            ("losses.laplacian", l.laplacian),
         ] {
             if !(value.is_finite() && value >= 0.0) {
                 return fail(field, format!("{value} is not a non-negative number"));
