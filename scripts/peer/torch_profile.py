@@ -6,8 +6,8 @@ usage (from the repository root, with a Python that has torch):
     python scripts/peer/torch_profile.py [--model teacher] [--res 256] [--dtype bf16]
         [--iters 20] [--threads 2] [--rows 15] [--train]
 
-With --train it profiles the teacher's training step instead (forward, MSE, backward and AdamW,
-as `torch_backbone.py --train` times it).
+With --train it profiles the model's training step instead (forward, MSE, backward and AdamW,
+as `torch_backbone.py --train` times the teacher's).
 """
 import argparse
 import os
@@ -44,22 +44,22 @@ def main():
         with torch.inference_mode(), dev.autocast():
             model(image, *rays)
 
-    if a.train:
-        target = torch.rand(1, 3, a.res, a.res)
-        opt = torch.optim.AdamW(model.parameters(), lr=1e-4, weight_decay=1e-5)
+    target = torch.rand(1, 3, a.res, a.res)
+    opt = torch.optim.AdamW(model.parameters(), lr=1e-4, weight_decay=1e-5)
 
-        def forward():  # noqa: F811 (the step replaces the forward)
-            opt.zero_grad(set_to_none=True)
-            with dev.autocast():
-                loss = torch.nn.functional.mse_loss(model(image, *rays), target)
-            loss.backward()
-            opt.step()
+    def step():
+        opt.zero_grad(set_to_none=True)
+        with dev.autocast():
+            loss = torch.nn.functional.mse_loss(model(image, *rays), target)
+        loss.backward()
+        opt.step()
 
+    run = step if a.train else forward
     for _ in range(3):
-        forward()
+        run()
     with profile(activities=[ProfilerActivity.CPU]) as prof:
         for _ in range(a.iters):
-            forward()
+            run()
     total = sum(e.self_cpu_time_total for e in prof.key_averages())
     print(f"{a.model} {a.res} px {a.dtype}: {total / 1e3 / a.iters:.1f} ms of self CPU time a {'step' if a.train else 'forward'}")
     print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=a.rows))

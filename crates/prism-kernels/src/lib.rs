@@ -273,8 +273,7 @@ pub fn adamw_step<const D: usize>(
         is_fused(&param) && is_fused(&grad),
         "adamw_step takes f32 tensors on a CPU backend"
     );
-    // At the first step the kernel ignores the moments: zero-sized stand-ins would do, but the
-    // sizes are checked, so they are the parameter's (its gradient's own buffer is not reused).
+    // At the first step the kernel ignores the moments' values but checks their sizes.
     let (m, v) = moments.unwrap_or_else(|| (param.zeros_like(), param.zeros_like()));
     let (p, m, v) = <Dispatch as FusedOps>::fused_adamw(
         param.into_dispatch(),

@@ -382,6 +382,10 @@ pub fn holes_loss(pred: Tensor<4>, gt: Tensor<4>, weights: Tensor<4>) -> Tensor<
 /// matching edge costs nothing either.
 pub fn laplacian_loss(pred: Tensor<4>, gt: Tensor<4>) -> Tensor<1> {
     let [b, c, h, w] = pred.dims();
+    assert!(
+        h >= 3 && w >= 3,
+        "L_lap needs images of at least 3 x 3 pixels, got {h} x {w}"
+    );
     let e = pred.sub(gt);
     let at = |rows: std::ops::Range<usize>, cols: std::ops::Range<usize>| {
         e.clone().slice([0..b, 0..c, rows, cols])

@@ -19,10 +19,8 @@ use prism_kernels::AdamWStep;
 pub struct FusedAdamW {
     /// Burn's optimizer, for the tensors the kernel does not take.
     burn: AdamW,
-    beta_1: f32,
-    beta_2: f32,
-    epsilon: f32,
-    weight_decay: f32,
+    /// The same settings for the kernel; each step fills in its learning rate and count.
+    settings: AdamWStep,
 }
 
 impl FusedAdamW {
@@ -40,13 +38,15 @@ impl FusedAdamW {
             .with_epsilon(epsilon)
             .with_weight_decay(weight_decay)
             .build();
-        ModuleOptimizer::from(Self {
-            burn,
+        let settings = AdamWStep {
+            lr: 0.0,
             beta_1,
             beta_2,
             epsilon,
             weight_decay,
-        })
+            time: 0,
+        };
+        ModuleOptimizer::from(Self { burn, settings })
     }
 }
 
@@ -67,11 +67,8 @@ impl Optimizer for FusedAdamW {
         let moments = state.map(|s| (s.momentum.moment_1, s.momentum.moment_2));
         let step = AdamWStep {
             lr,
-            beta_1: self.beta_1,
-            beta_2: self.beta_2,
-            epsilon: self.epsilon,
-            weight_decay: self.weight_decay,
             time,
+            ..self.settings
         };
         let (tensor, moment_1, moment_2) = prism_kernels::adamw_step(tensor, grad, moments, step);
         let momentum = AdaptiveMomentumState::new(time, moment_1, moment_2);
