@@ -11,6 +11,7 @@ use multiversion::multiversion;
 use rayon::prelude::*;
 
 use crate::bf16::Bf16Kernel;
+use crate::buffer::filled_with;
 use crate::math;
 use crate::matrix::{View, matmul};
 
@@ -153,22 +154,19 @@ where
     let Dims {
         tokens, head_dim, ..
     } = dims;
-    let mut o = vec![0.0; dims.heads * dims.per_head()];
-    let mut lse = vec![0.0; dims.heads * tokens];
-    if o.is_empty() {
-        return (o, lse);
+    if dims.heads * dims.per_head() == 0 {
+        return (Vec::new(), vec![0.0; dims.heads * tokens]);
     }
-    o.par_chunks_mut(dims.per_head())
-        .zip(lse.par_chunks_mut(tokens))
-        .enumerate()
-        .for_each(|(h, (o, lse))| {
-            let head = prepare(h);
-            o.par_chunks_mut(BLOCK * head_dim)
-                .zip(lse.par_chunks_mut(BLOCK))
-                .enumerate()
-                .for_each_init(&scratch, |s, (b, (o, lse))| block(&head, b, o, lse, s));
-        });
-    (o, lse)
+    let (o, lse) = filled_with(dims.heads * dims.per_head(), dims.per_head(), |h, o| {
+        let head = prepare(h);
+        let mut lse = vec![0.0; tokens];
+        o.par_chunks_mut(BLOCK * head_dim)
+            .zip(lse.par_chunks_mut(BLOCK))
+            .enumerate()
+            .for_each_init(&scratch, |s, (b, (o, lse))| block(&head, b, o, lse, s));
+        lse
+    });
+    (o, lse.concat())
 }
 
 /// Each row of `p` (rows of `len`) replaced by its softmax; `lse` gets the rows'

@@ -3,6 +3,7 @@
 use multiversion::multiversion;
 use rayon::prelude::*;
 
+use crate::buffer::filled;
 use crate::math;
 
 /// Elements per parallel task: large enough to amortise scheduling, small enough to balance.
@@ -20,11 +21,10 @@ pub fn gelu_backward(x: &[f32], grad: &[f32]) -> Vec<f32> {
         grad.len(),
         "gelu_backward: input and gradient sizes differ"
     );
-    let mut dx = vec![0.0; x.len()];
-    dx.par_chunks_mut(CHUNK)
-        .zip(x.par_chunks(CHUNK).zip(grad.par_chunks(CHUNK)))
-        .for_each(|(dx, (x, g))| gelu_backward_chunk(x, g, dx));
-    dx
+    filled(x.len(), CHUNK, |i, dx| {
+        let chunk = i * CHUNK..i * CHUNK + dx.len();
+        gelu_backward_chunk(&x[chunk.clone()], &grad[chunk], dx);
+    })
 }
 
 #[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]

@@ -19,6 +19,7 @@ use crate::attention::{self, Dims};
 use crate::bf16::{self, Bf16Kernel};
 use crate::conv::{self, ConvDims, Wanted};
 use crate::elementwise;
+use crate::heads::{self, Heads};
 use crate::host::HostTensors;
 use crate::matrix::{self, View};
 use crate::norm::{self, NormKind};
@@ -48,6 +49,18 @@ pub trait FusedOps: Backend {
         q: FloatTensor<Self>,
         k: FloatTensor<Self>,
         v: FloatTensor<Self>,
+        bf16: bool,
+    ) -> FloatTensor<Self>;
+    /// Multi-head softmax self-attention with QK-norm from the joint projection `qkv`
+    /// `[B, T, 3 H d_h]` (queries, keys, values; head by head within each), to the heads'
+    /// outputs `[B, T, H d_h]`: the queries and keys RMS-normalised over `d_h` and scaled by
+    /// `q_gain` and `k_gain` (`[d_h]`). `bf16` as in [`FusedOps::fused_attention`].
+    fn fused_self_attention(
+        qkv: FloatTensor<Self>,
+        q_gain: FloatTensor<Self>,
+        k_gain: FloatTensor<Self>,
+        heads: usize,
+        eps: f64,
         bf16: bool,
     ) -> FloatTensor<Self>;
     /// `a b` for `a` of `[.., m, k]` and `b` of `[k, n]`, the leading dimensions of `a` taken
@@ -187,6 +200,84 @@ fn attention_backward<B: HostTensors>(
         scale,
     );
     [dq, dk, dv].map(|g| B::tensor(g, shape.clone(), &device))
+}
+
+/// The sizes of a self-attention on `qkv` `[B, T, 3 H d_h]` with `heads` heads.
+fn heads_of(qkv: &Shape, heads: usize) -> Heads {
+    assert!(
+        qkv.num_dims() == 3 && heads > 0 && qkv[2].is_multiple_of(3 * heads),
+        "fused self-attention takes qkv of [B, T, 3 H d_h] with H = {heads}, got {qkv:?}"
+    );
+    Heads {
+        batch: qkv[0],
+        tokens: qkv[1],
+        heads,
+        head_dim: qkv[2] / (3 * heads),
+    }
+}
+
+/// What the self-attention's backward step keeps: its inputs and the kernel's saved values.
+#[derive(Clone, Debug)]
+struct SelfAttentionState<B: Backend> {
+    qkv: FloatTensor<B>,
+    q_gain: FloatTensor<B>,
+    k_gain: FloatTensor<B>,
+    heads: usize,
+    eps: f64,
+    saved: heads::Saved,
+}
+
+/// The heads' outputs through the host kernel, and what its backward step needs.
+fn self_attention_forward<B: HostTensors>(
+    qkv: FloatTensor<B>,
+    q_gain: FloatTensor<B>,
+    k_gain: FloatTensor<B>,
+    heads: usize,
+    eps: f64,
+    bf16: bool,
+) -> (FloatTensor<B>, SelfAttentionState<B>) {
+    let (shape, device) = (qkv.shape(), qkv.device());
+    let l = heads_of(&shape, heads);
+    let (out, saved) = heads::forward(
+        &B::values(qkv.clone()),
+        &B::values(q_gain.clone()),
+        &B::values(k_gain.clone()),
+        eps as f32,
+        l,
+        bf16.then(Bf16Kernel::chosen),
+    );
+    let out_shape = Shape::new([l.batch, l.tokens, l.heads * l.head_dim]);
+    let state = SelfAttentionState {
+        qkv,
+        q_gain,
+        k_gain,
+        heads,
+        eps,
+        saved,
+    };
+    (B::tensor(out, out_shape, &device), state)
+}
+
+/// `(d qkv, d q_gain, d k_gain)` through the host kernel.
+fn self_attention_backward<B: HostTensors>(
+    state: SelfAttentionState<B>,
+    grad: FloatTensor<B>,
+) -> [FloatTensor<B>; 3] {
+    let (shape, gain_shape, device) = (state.qkv.shape(), state.q_gain.shape(), state.qkv.device());
+    let (dqkv, dq_gain, dk_gain) = heads::backward(
+        &B::values(state.qkv),
+        &B::values(state.q_gain),
+        &B::values(state.k_gain),
+        state.eps as f32,
+        heads_of(&shape, state.heads),
+        &state.saved,
+        &B::values(grad),
+    );
+    [
+        B::tensor(dqkv, shape, &device),
+        B::tensor(dq_gain, gain_shape.clone(), &device),
+        B::tensor(dk_gain, gain_shape, &device),
+    ]
 }
 
 /// The sizes `(m, k, n)` of a product of `[.., m, k]` by `[k, n]`, `m` taking in the leading
@@ -333,6 +424,17 @@ macro_rules! host_fused_ops {
                 attention_forward::<Self>(q, k, v, bf16).0
             }
 
+            fn fused_self_attention(
+                qkv: FloatTensor<Self>,
+                q_gain: FloatTensor<Self>,
+                k_gain: FloatTensor<Self>,
+                heads: usize,
+                eps: f64,
+                bf16: bool,
+            ) -> FloatTensor<Self> {
+                self_attention_forward::<Self>(qkv, q_gain, k_gain, heads, eps, bf16).0
+            }
+
             fn fused_matmul(
                 a: FloatTensor<Self>,
                 b: FloatTensor<Self>,
@@ -409,6 +511,18 @@ impl<B: HostTensors> Backward<B, 3> for AttentionBackward {
 
     fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
         backward_each::<B, _, 3>(ops, grads, attention_backward::<B>);
+    }
+}
+
+/// Backward step of [`FusedOps::fused_self_attention`].
+#[derive(Debug)]
+struct SelfAttentionBackward;
+
+impl<B: HostTensors> Backward<B, 3> for SelfAttentionBackward {
+    type State = SelfAttentionState<B>;
+
+    fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
+        backward_each::<B, _, 3>(ops, grads, self_attention_backward::<B>);
     }
 }
 
@@ -537,6 +651,37 @@ impl<B: HostTensors, C: CheckpointStrategy> FusedOps for Autodiff<B, C> {
                 prep.finish(state, o)
             }
             OpsKind::UnTracked(prep) => prep.finish(attention_forward::<B>(q, k, v, bf16).0),
+        }
+    }
+
+    fn fused_self_attention(
+        qkv: FloatTensor<Self>,
+        q_gain: FloatTensor<Self>,
+        k_gain: FloatTensor<Self>,
+        heads: usize,
+        eps: f64,
+        bf16: bool,
+    ) -> FloatTensor<Self> {
+        let nodes = [qkv.node(), q_gain.node(), k_gain.node()];
+        let (qkv, q_gain, k_gain) = (
+            qkv.into_primitive(),
+            q_gain.into_primitive(),
+            k_gain.into_primitive(),
+        );
+        match SelfAttentionBackward
+            .prepare::<C>(nodes)
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                // The f32 kernels under a gradient, as fused_attention.
+                let (out, state) =
+                    self_attention_forward::<B>(qkv, q_gain, k_gain, heads, eps, false);
+                prep.finish(state, out)
+            }
+            OpsKind::UnTracked(prep) => {
+                prep.finish(self_attention_forward::<B>(qkv, q_gain, k_gain, heads, eps, bf16).0)
+            }
         }
     }
 

@@ -31,11 +31,13 @@
 mod adamw;
 mod attention;
 mod bf16;
+mod buffer;
 mod conv;
 #[cfg(any(feature = "wgpu", feature = "cuda"))]
 pub mod device;
 mod elementwise;
 mod extension;
+mod heads;
 mod host;
 pub mod math;
 mod matrix;
@@ -287,6 +289,39 @@ pub fn adamw_step<const D: usize>(
         Tensor::from_dispatch(m),
         Tensor::from_dispatch(v),
     )
+}
+
+/// Multi-head softmax self-attention with QK-norm, from the joint projection `qkv`
+/// `[B, T, 3 H d_h]` (queries, keys and values, head by head within each) to the heads' outputs
+/// `[B, T, H d_h]`, as the output projection reads them: `attention(RMSNorm(q) q_gain,
+/// RMSNorm(k) k_gain, v)` per head, the norms over `d_h` with `eps`. `bf16` as in
+/// [`attention_bf16`].
+///
+/// On the CPU backends in f32: one host kernel, forward and backward, that reads `qkv` and
+/// writes its gradient in their own layout (the composition permutes, narrows and merges with
+/// a copy or a zeroed gradient each). Elsewhere: that composition ([`unfused::heads_attention`])
+/// around [`rms_norm`] and [`attention`]'s paths.
+pub fn self_attention(
+    qkv: Tensor<3>,
+    q_gain: Tensor<1>,
+    k_gain: Tensor<1>,
+    heads: usize,
+    eps: f64,
+    bf16: bool,
+) -> Tensor<3> {
+    if is_fused(&qkv) && q_gain.dtype() == DType::F32 && k_gain.dtype() == DType::F32 {
+        return Tensor::from_dispatch(<Dispatch as FusedOps>::fused_self_attention(
+            qkv.into_dispatch(),
+            q_gain.into_dispatch(),
+            k_gain.into_dispatch(),
+            heads,
+            eps,
+            bf16,
+        ));
+    }
+    unfused::heads_attention(qkv, heads, |q, k, v| {
+        attention_in(rms_norm(q, q_gain, eps), rms_norm(k, k_gain, eps), v, bf16)
+    })
 }
 
 /// [`attention`], its fused host kernel taking bf16 products when `bf16`.

@@ -3,8 +3,8 @@
 //! Rows are split over threads; the gain's gradient is summed per task and then added up.
 
 use multiversion::multiversion;
-use rayon::prelude::*;
 
+use crate::buffer::{filled, filled_with};
 use crate::math;
 
 /// Which normalisation.
@@ -41,16 +41,15 @@ pub fn forward(kind: NormKind, x: &[f32], gamma: &[f32], eps: f32) -> Vec<f32> {
         "norm: {} values are not rows of {d}",
         x.len()
     );
-    let mut y = vec![0.0; x.len()];
     let task = rows_per_task(d) * d;
-    y.par_chunks_mut(task)
-        .zip(x.par_chunks(task))
-        .for_each(|(y, x)| forward_rows(kind, x, gamma, eps, y));
-    y
+    filled(x.len(), task, |i, y| {
+        forward_rows(kind, &x[i * task..][..y.len()], gamma, eps, y);
+    })
 }
 
+/// [`forward`] on the rows of `x` into `y`, on this thread.
 #[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]
-fn forward_rows(kind: NormKind, x: &[f32], gamma: &[f32], eps: f32, y: &mut [f32]) {
+pub(crate) fn forward_rows(kind: NormKind, x: &[f32], gamma: &[f32], eps: f32, y: &mut [f32]) {
     let d = gamma.len();
     for (y, x) in y.chunks_exact_mut(d).zip(x.chunks_exact(d)) {
         let (centre, rstd) = stats(kind, x, eps);
@@ -82,17 +81,21 @@ pub fn backward(
         grad.len(),
         "norm backward: input and gradient sizes differ"
     );
-    let mut dx = vec![0.0; x.len()];
     let task = rows_per_task(d) * d;
-    let parts: Vec<Vec<f32>> = dx
-        .par_chunks_mut(task)
-        .zip(x.par_chunks(task).zip(grad.par_chunks(task)))
-        .map(|(dx, (x, g))| {
-            let mut dgamma = vec![0.0; d];
-            backward_rows(kind, x, gamma, g, eps, dx, &mut dgamma);
-            dgamma
-        })
-        .collect();
+    let (dx, parts) = filled_with(x.len(), task, |i, dx| {
+        let rows = i * task..i * task + dx.len();
+        let mut dgamma = vec![0.0; d];
+        backward_rows(
+            kind,
+            &x[rows.clone()],
+            gamma,
+            &grad[rows],
+            eps,
+            dx,
+            &mut dgamma,
+        );
+        dgamma
+    });
     // Summed in the tasks' order, not in rayon's reduction tree, whose shape follows which
     // thread stole what: the same inputs give the same bits on any number of threads.
     let mut dgamma = vec![0.0; d];
@@ -102,8 +105,10 @@ pub fn backward(
     (dx, dgamma)
 }
 
+/// [`backward`] on the rows of `x` into `dx`, on this thread, adding the rows' share of the
+/// gain's gradient to `dgamma`.
 #[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]
-fn backward_rows(
+pub(crate) fn backward_rows(
     kind: NormKind,
     x: &[f32],
     gamma: &[f32],

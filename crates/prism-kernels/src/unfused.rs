@@ -38,6 +38,43 @@ pub fn attention(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
     softmax(scores, 3).matmul(v)
 }
 
+/// `attend(q, k, v)` on the heads of the joint projection `qkv` `[B, T, 3 H d_h]`, each
+/// `[B, H, T, d_h]`, and its output merged back to `[B, T, H d_h]`: one copy into head-major
+/// order, after which `q`, `k` and `v` are slices of it, and one back. The reordering is made
+/// of axis swaps, which every backend records correctly (served devices included; see
+/// `prism_core::axes`).
+pub fn heads_attention(
+    qkv: Tensor<3>,
+    heads: usize,
+    attend: impl FnOnce(Tensor<4>, Tensor<4>, Tensor<4>) -> Tensor<4>,
+) -> Tensor<3> {
+    let [batch, tokens, joint] = qkv.dims();
+    let (width, head_dim) = (joint / 3, joint / (3 * heads));
+    let qkv = qkv
+        .reshape([batch, tokens, 3, heads, head_dim])
+        .swap_dims(1, 2)
+        .swap_dims(0, 1)
+        .swap_dims(2, 3)
+        .reshape([3 * batch, heads, tokens, head_dim]);
+    let part = |i: usize| qkv.clone().narrow(0, i * batch, batch);
+    let out = attend(part(0), part(1), part(2));
+    out.swap_dims(1, 2).reshape([batch, tokens, width])
+}
+
+/// Multi-head softmax self-attention with QK-norm from the joint projection (see
+/// `prism_kernels::self_attention`), composed from Burn's ops.
+pub fn self_attention(
+    qkv: Tensor<3>,
+    q_gain: Tensor<1>,
+    k_gain: Tensor<1>,
+    heads: usize,
+    eps: f64,
+) -> Tensor<3> {
+    heads_attention(qkv, heads, |q, k, v| {
+        attention(rms_norm(q, q_gain, eps), rms_norm(k, k_gain, eps), v)
+    })
+}
+
 /// `x w` with both operands rounded to bf16 and an f32 result, as Burn's matmul of the
 /// operands cast to bf16 and back to f32 (`x` of `[.., m, k]`, `w` of `[k, n]`).
 pub fn matmul_bf16<const D: usize>(x: Tensor<D>, w: Tensor<2>) -> Tensor<D> {

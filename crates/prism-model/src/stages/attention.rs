@@ -6,7 +6,6 @@ use burn::module::Module;
 use burn::nn::{Initializer, Linear, LinearConfig, RmsNorm, RmsNormConfig};
 use burn::tensor::activation::relu;
 use burn::tensor::{DType, Device, FloatDType, Tensor};
-use prism_core::axes::permute;
 use serde::{Deserialize, Serialize};
 
 use super::linear;
@@ -221,38 +220,34 @@ impl SelfAttention {
         self.heads
     }
 
-    /// The normalised per-head queries, keys and values of `x` (`[B, T, d]`), each
-    /// `[B, H, T, d_h]`: `q = RMSNorm(x W_q)`, `k = RMSNorm(x W_k)`, `v = x W_v`.
-    pub fn project(&self, x: Tensor<3>) -> (Tensor<4>, Tensor<4>, Tensor<4>) {
-        let [batch, tokens, width] = x.dims();
-        let head_dim = width / self.heads;
-        // [B, T, 3, H, d_h] -> [3 B, H, T, d_h]: one copy into head-major order, after which q,
-        // k and v are contiguous slices of it (no copy each).
-        let qkv = permute(
-            linear(&self.qkv, x, self.bf16_products)
-                .reshape([batch, tokens, 3, self.heads, head_dim]),
-            [2, 0, 3, 1, 4],
-        )
-        .reshape([3 * batch, self.heads, tokens, head_dim]);
-        let part = |i: usize| qkv.clone().narrow(0, i * batch, batch);
-        let (q, k, v) = (part(0), part(1), part(2));
-        let norm = |norm: &RmsNorm, x| prism_kernels::rms_norm(x, norm.gamma.val(), norm.epsilon);
-        (norm(&self.q_norm, q), norm(&self.k_norm, k), v)
-    }
-
-    /// Self-attention of `x` (`[B, T, d]`) with this layer's kind. Full attention and the
-    /// QK-norms run prism's fused kernels on the CPU backends ([`prism_kernels`]) and Burn's
-    /// ops elsewhere.
+    /// Self-attention of `x` (`[B, T, d]`) with this layer's kind: `q = RMSNorm(x W_q)`,
+    /// `k = RMSNorm(x W_k)`, `v = x W_v` per head, attended and projected out. Full attention
+    /// with its QK-norms runs as one fused kernel on the CPU backends
+    /// ([`prism_kernels::self_attention`]) and as Burn's ops elsewhere; linear attention as
+    /// Burn's ops around the fused norms.
     pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
-        let [batch, tokens, width] = x.dims();
-        let (q, k, v) = self.project(x);
+        let qkv = linear(&self.qkv, x, self.bf16_products);
+        let (q_gain, k_gain) = (self.q_norm.gamma.val(), self.k_norm.gamma.val());
+        // Both norms are built with the config's `norm_eps`.
+        let eps = self.q_norm.epsilon;
         let heads_out = match self.kind {
-            AttentionKind::Full if self.bf16_products => prism_kernels::attention_bf16(q, k, v),
-            AttentionKind::Full => prism_kernels::attention(q, k, v),
-            AttentionKind::Linear => linear_attention(q, k, v, self.feature_map, self.linear_eps),
+            AttentionKind::Full => prism_kernels::self_attention(
+                qkv,
+                q_gain,
+                k_gain,
+                self.heads,
+                eps,
+                self.bf16_products,
+            ),
+            AttentionKind::Linear => {
+                prism_kernels::unfused::heads_attention(qkv, self.heads, |q, k, v| {
+                    let q = prism_kernels::rms_norm(q, q_gain, eps);
+                    let k = prism_kernels::rms_norm(k, k_gain, eps);
+                    linear_attention(q, k, v, self.feature_map, self.linear_eps)
+                })
+            }
         };
-        let merged = heads_out.swap_dims(1, 2).reshape([batch, tokens, width]);
-        linear(&self.out, merged, self.bf16_products)
+        linear(&self.out, heads_out, self.bf16_products)
     }
 }
 

@@ -1,0 +1,305 @@
+//! Multi-head self-attention from the joint projection as it lies, on host slices, forward and
+//! backward: `qkv` `[B, T, 3, H, d_h]` in, the heads' outputs `[B, T, H, d_h]` out, with
+//! RMSNorm on the queries and keys (QK-norm) on the way.
+//!
+//! Composed from Burn's ops, a block's attention permutes `qkv` into head-major order, narrows
+//! out `q`, `k` and `v`, normalises two of them and merges the heads back: two copies on one
+//! thread forward, and backward a zeroed `qkv`-sized gradient per narrow, two sums of them and
+//! two more copies. Here each layout change is part of a parallel pass that is made anyway (the
+//! norms, the gathering of a head's rows), and the gradient of `qkv` is written once, in its
+//! own layout.
+
+use crate::attention::{self, Dims};
+use crate::bf16::Bf16Kernel;
+use crate::buffer::{filled, filled_with};
+use crate::norm::{self, NormKind};
+
+/// Sizes of a multi-head self-attention.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Heads {
+    /// Batch items.
+    pub batch: usize,
+    /// Tokens per item.
+    pub tokens: usize,
+    /// Heads.
+    pub heads: usize,
+    /// Width of a head.
+    pub head_dim: usize,
+}
+
+impl Heads {
+    /// The attention problems, one per batch item and head.
+    pub fn attention(&self) -> Dims {
+        Dims {
+            heads: self.batch * self.heads,
+            tokens: self.tokens,
+            head_dim: self.head_dim,
+        }
+    }
+
+    /// Values per token of the output (`H d_h`).
+    fn width(&self) -> usize {
+        self.heads * self.head_dim
+    }
+
+    /// Values of one head-major tensor (`B H T d_h`).
+    fn len(&self) -> usize {
+        self.batch * self.tokens * self.width()
+    }
+
+    /// Token rows (`B T`) per parallel task over rows of `values` each: about 16k values.
+    fn rows_per_task(&self, values: usize) -> usize {
+        ((1 << 14) / values.max(1)).max(1)
+    }
+
+    /// Where the `d_h` values of head `h` of part `part` (0 `q`, 1 `k`, 2 `v`) of token `t` of
+    /// item `b` start in `qkv`.
+    fn joint(&self, b: usize, t: usize, part: usize, h: usize) -> usize {
+        ((b * self.tokens + t) * 3 + part) * self.width() + h * self.head_dim
+    }
+
+    /// Where token `t` of head `bh` (item times heads plus head) starts in a head-major tensor.
+    fn head_major(&self, bh: usize, t: usize) -> usize {
+        (bh * self.tokens + t) * self.head_dim
+    }
+
+    /// Where head `h` of token `t` of item `b` starts in a token-major `[B, T, H, d_h]` tensor.
+    fn token_major(&self, b: usize, t: usize, h: usize) -> usize {
+        (b * self.tokens + t) * self.width() + h * self.head_dim
+    }
+
+    fn check(&self, qkv: &[f32], q_gain: &[f32], k_gain: &[f32]) {
+        assert_eq!(
+            qkv.len(),
+            3 * self.len(),
+            "self-attention: qkv has {} values, expected {self:?} x 3",
+            qkv.len()
+        );
+        for (name, gain) in [("query", q_gain), ("key", k_gain)] {
+            assert_eq!(
+                gain.len(),
+                self.head_dim,
+                "self-attention: the {name} gain has {} values, expected d_h = {}",
+                gain.len(),
+                self.head_dim
+            );
+        }
+    }
+}
+
+/// What the backward pass reads of the forward's: the normalised queries and keys, the values,
+/// the heads' outputs (all head-major, `[B H, T, d_h]`) and each query row's log-sum-exp.
+#[derive(Clone, Debug)]
+pub struct Saved {
+    q: Vec<f32>,
+    k: Vec<f32>,
+    v: Vec<f32>,
+    o: Vec<f32>,
+    lse: Vec<f32>,
+}
+
+/// The heads' outputs `[B, T, H, d_h]` of `softmax(q k^T / sqrt(d_h)) v` per head, where
+/// `q = RMSNorm(q_raw) q_gain`, `k = RMSNorm(k_raw) k_gain` and `q_raw`, `k_raw`, `v` are the
+/// three parts of `qkv` `[B, T, 3, H, d_h]`; and what [`backward`] needs. With `bf16`, the
+/// attention's products go through `bf16`'s kernel ([`attention::forward_bf16`]).
+pub fn forward(
+    qkv: &[f32],
+    q_gain: &[f32],
+    k_gain: &[f32],
+    eps: f32,
+    l: Heads,
+    bf16: Option<Bf16Kernel>,
+) -> (Vec<f32>, Saved) {
+    l.check(qkv, q_gain, k_gain);
+    let q = split(qkv, 0, Some(q_gain), eps, l);
+    let k = split(qkv, 1, Some(k_gain), eps, l);
+    let v = split(qkv, 2, None, eps, l);
+    let scale = 1.0 / (l.head_dim as f32).sqrt();
+    let (o, lse) = match bf16 {
+        Some(kernel) => attention::forward_bf16(kernel, &q, &k, &v, l.attention(), scale),
+        None => attention::forward(&q, &k, &v, l.attention(), scale),
+    };
+    let out = merge(&o, l);
+    (out, Saved { q, k, v, o, lse })
+}
+
+/// The gradients `(d qkv, d q_gain, d k_gain)` of [`forward`] given its output's gradient
+/// `grad` (`[B, T, H, d_h]`).
+pub fn backward(
+    qkv: &[f32],
+    q_gain: &[f32],
+    k_gain: &[f32],
+    eps: f32,
+    l: Heads,
+    saved: &Saved,
+    grad: &[f32],
+) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+    l.check(qkv, q_gain, k_gain);
+    assert_eq!(
+        grad.len(),
+        l.len(),
+        "self-attention: the output's gradient has {} values, expected {l:?}",
+        grad.len()
+    );
+    let Saved { q, k, v, o, lse } = saved;
+    let scale = 1.0 / (l.head_dim as f32).sqrt();
+    let grad = unmerge(grad, l);
+    let (dq, dk, dv) = attention::backward(q, k, v, o, lse, &grad, l.attention(), scale);
+    join(qkv, [q_gain, k_gain], eps, [&dq, &dk, &dv], l)
+}
+
+/// Part `part` (0 `q`, 1 `k`, 2 `v`) of `qkv` in head-major order, each row normalised by
+/// RMSNorm times `gain` when there is one.
+fn split(qkv: &[f32], part: usize, gain: Option<&[f32]>, eps: f32, l: Heads) -> Vec<f32> {
+    let d = l.head_dim;
+    filled(l.len(), l.tokens * d, |bh, out| {
+        let (b, h) = (bh / l.heads, bh % l.heads);
+        for (t, dst) in out.chunks_exact_mut(d).enumerate() {
+            let x = &qkv[l.joint(b, t, part, h)..][..d];
+            match gain {
+                Some(gain) => norm::forward_rows(NormKind::Rms, x, gain, eps, dst),
+                None => dst.copy_from_slice(x),
+            }
+        }
+    })
+}
+
+/// The heads' outputs from head-major order `[B H, T, d_h]` to token-major `[B, T, H, d_h]`.
+fn merge(o: &[f32], l: Heads) -> Vec<f32> {
+    let (width, d) = (l.width(), l.head_dim);
+    let rows = l.rows_per_task(width);
+    filled(l.len(), rows * width, |task, out| {
+        for (r, row) in out.chunks_exact_mut(width).enumerate() {
+            let bt = task * rows + r;
+            let (b, t) = (bt / l.tokens, bt % l.tokens);
+            for (h, dst) in row.chunks_exact_mut(d).enumerate() {
+                dst.copy_from_slice(&o[l.head_major(b * l.heads + h, t)..][..d]);
+            }
+        }
+    })
+}
+
+/// A token-major `[B, T, H, d_h]` tensor in head-major order `[B H, T, d_h]`.
+fn unmerge(x: &[f32], l: Heads) -> Vec<f32> {
+    let d = l.head_dim;
+    filled(l.len(), l.tokens * d, |bh, out| {
+        let (b, h) = (bh / l.heads, bh % l.heads);
+        for (t, dst) in out.chunks_exact_mut(d).enumerate() {
+            dst.copy_from_slice(&x[l.token_major(b, t, h)..][..d]);
+        }
+    })
+}
+
+/// The gradient of `qkv` in its own layout from the head-major gradients of the normalised
+/// queries and keys and of the values (the norms' backward on the way), and the gains'.
+fn join(
+    qkv: &[f32],
+    gains: [&[f32]; 2],
+    eps: f32,
+    grads: [&[f32]; 3],
+    l: Heads,
+) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+    let (width, d) = (l.width(), l.head_dim);
+    let rows = l.rows_per_task(3 * width);
+    let (dqkv, parts) = filled_with(3 * l.len(), rows * 3 * width, |task, out| {
+        let mut dgains = [vec![0.0; d], vec![0.0; d]];
+        for (r, row) in out.chunks_exact_mut(3 * width).enumerate() {
+            let bt = task * rows + r;
+            let (b, t) = (bt / l.tokens, bt % l.tokens);
+            for (part, heads) in row.chunks_exact_mut(width).enumerate() {
+                for (h, dst) in heads.chunks_exact_mut(d).enumerate() {
+                    let grad = &grads[part][l.head_major(b * l.heads + h, t)..][..d];
+                    match part {
+                        2 => dst.copy_from_slice(grad),
+                        _ => {
+                            let x = &qkv[l.joint(b, t, part, h)..][..d];
+                            norm::backward_rows(
+                                NormKind::Rms,
+                                x,
+                                gains[part],
+                                grad,
+                                eps,
+                                dst,
+                                &mut dgains[part],
+                            );
+                        }
+                    }
+                }
+            }
+        }
+        dgains
+    });
+    // Summed in the tasks' order: the same bits on any number of threads.
+    let (mut dq_gain, mut dk_gain) = (vec![0.0; d], vec![0.0; d]);
+    for [q, k] in parts {
+        dq_gain.iter_mut().zip(&q).for_each(|(a, b)| *a += b);
+        dk_gain.iter_mut().zip(&k).for_each(|(a, b)| *a += b);
+    }
+    (dqkv, dq_gain, dk_gain)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::test_util::values;
+
+    const L: Heads = Heads {
+        batch: 2,
+        tokens: 5,
+        heads: 2,
+        head_dim: 4,
+    };
+
+    /// `sum(forward(qkv, gains) * w)` in f64 from the f32 kernel.
+    fn loss(qkv: &[f32], q_gain: &[f32], k_gain: &[f32], w: &[f32]) -> f64 {
+        let (out, _) = forward(qkv, q_gain, k_gain, 1e-5, L, None);
+        out.iter().zip(w).map(|(o, w)| *o as f64 * *w as f64).sum()
+    }
+
+    /// The backward pass against central finite differences of the forward, for every value
+    /// of `qkv` and of both gains.
+    #[test]
+    fn gradients_match_finite_differences() {
+        let qkv = values(3 * L.len(), 1);
+        let (q_gain, k_gain) = (values(4, 2), values(4, 3));
+        let q_gain: Vec<f32> = q_gain.iter().map(|g| g + 1.5).collect();
+        let k_gain: Vec<f32> = k_gain.iter().map(|g| g + 1.5).collect();
+        let w = values(L.len(), 4);
+        let (_, saved) = forward(&qkv, &q_gain, &k_gain, 1e-5, L, None);
+        let (dqkv, dq_gain, dk_gain) = backward(&qkv, &q_gain, &k_gain, 1e-5, L, &saved, &w);
+        let h = 1e-2;
+        let numeric = |which: usize, i: usize| {
+            let at = |delta: f32| {
+                let mut inputs = [qkv.clone(), q_gain.clone(), k_gain.clone()];
+                inputs[which][i] += delta;
+                let [x, g, k] = &inputs;
+                loss(x, g, k, &w)
+            };
+            (at(h) - at(-h)) / (2.0 * h as f64)
+        };
+        for (which, analytic) in [dqkv, dq_gain, dk_gain].iter().enumerate() {
+            for (i, &a) in analytic.iter().enumerate() {
+                let n = numeric(which, i);
+                assert!(
+                    (a as f64 - n).abs() < 2e-3 + 2e-2 * n.abs(),
+                    "input {which}, value {i}: backward {a}, finite difference {n}"
+                );
+            }
+        }
+    }
+
+    /// The layout changes undo each other, and `merge` puts head `h`'s row of token `t` where
+    /// the output projection reads it.
+    #[test]
+    fn merge_and_unmerge_are_inverse_transposes() {
+        let o = values(L.len(), 5);
+        let merged = merge(&o, L);
+        assert_eq!(unmerge(&merged, L), o);
+        let (b, t, h) = (1, 3, 1);
+        let d = L.head_dim;
+        assert_eq!(
+            merged[L.token_major(b, t, h)..][..d],
+            o[L.head_major(b * L.heads + h, t)..][..d]
+        );
+    }
+}
