@@ -30,11 +30,11 @@ pub struct Dims {
 }
 
 impl Dims {
-    fn per_head(&self) -> usize {
+    pub(crate) fn per_head(&self) -> usize {
         self.tokens * self.head_dim
     }
 
-    fn check(&self, name: &str, len: usize) {
+    pub(crate) fn check(&self, name: &str, len: usize) {
         assert_eq!(
             len,
             self.heads * self.per_head(),

@@ -19,7 +19,7 @@ use crate::attention::{self, Dims};
 use crate::bf16::{self, Bf16Kernel};
 use crate::conv::{self, ConvDims, Wanted};
 use crate::elementwise;
-use crate::heads::{self, Heads};
+use crate::heads::{self, Heads, Mixing};
 use crate::host::HostTensors;
 use crate::matrix::{self, View};
 use crate::norm::{self, NormKind};
@@ -51,17 +51,17 @@ pub trait FusedOps: Backend {
         v: FloatTensor<Self>,
         bf16: bool,
     ) -> FloatTensor<Self>;
-    /// Multi-head softmax self-attention with QK-norm from the joint projection `qkv`
-    /// `[B, T, 3 H d_h]` (queries, keys, values; head by head within each), to the heads'
-    /// outputs `[B, T, H d_h]`: the queries and keys RMS-normalised over `d_h` and scaled by
-    /// `q_gain` and `k_gain` (`[d_h]`). `bf16` as in [`FusedOps::fused_attention`].
+    /// Multi-head self-attention with QK-norm from the joint projection `qkv` `[B, T, 3 H d_h]`
+    /// (queries, keys, values; head by head within each), to the heads' outputs `[B, T, H d_h]`:
+    /// the queries and keys RMS-normalised over `d_h` and scaled by `q_gain` and `k_gain`
+    /// (`[d_h]`), then `mixing` in each head (its bf16 products without a gradient only).
     fn fused_self_attention(
         qkv: FloatTensor<Self>,
         q_gain: FloatTensor<Self>,
         k_gain: FloatTensor<Self>,
         heads: usize,
         eps: f64,
-        bf16: bool,
+        mixing: Mixing,
     ) -> FloatTensor<Self>;
     /// `a b` for `a` of `[.., m, k]` and `b` of `[k, n]`, the leading dimensions of `a` taken
     /// as rows of one product. With `bf16`, both operands are rounded to bf16 and the products
@@ -224,6 +224,7 @@ struct SelfAttentionState<B: Backend> {
     k_gain: FloatTensor<B>,
     heads: usize,
     eps: f64,
+    mixing: Mixing,
     saved: heads::Saved,
 }
 
@@ -234,7 +235,7 @@ fn self_attention_forward<B: HostTensors>(
     k_gain: FloatTensor<B>,
     heads: usize,
     eps: f64,
-    bf16: bool,
+    mixing: Mixing,
 ) -> (FloatTensor<B>, SelfAttentionState<B>) {
     let (shape, device) = (qkv.shape(), qkv.device());
     let l = heads_of(&shape, heads);
@@ -244,7 +245,7 @@ fn self_attention_forward<B: HostTensors>(
         &B::values(k_gain.clone()),
         eps as f32,
         l,
-        bf16.then(Bf16Kernel::chosen),
+        mixing,
     );
     let out_shape = Shape::new([l.batch, l.tokens, l.heads * l.head_dim]);
     let state = SelfAttentionState {
@@ -253,6 +254,7 @@ fn self_attention_forward<B: HostTensors>(
         k_gain,
         heads,
         eps,
+        mixing,
         saved,
     };
     (B::tensor(out, out_shape, &device), state)
@@ -270,6 +272,7 @@ fn self_attention_backward<B: HostTensors>(
         &B::values(state.k_gain),
         state.eps as f32,
         heads_of(&shape, state.heads),
+        state.mixing,
         &state.saved,
         &B::values(grad),
     );
@@ -430,9 +433,9 @@ macro_rules! host_fused_ops {
                 k_gain: FloatTensor<Self>,
                 heads: usize,
                 eps: f64,
-                bf16: bool,
+                mixing: Mixing,
             ) -> FloatTensor<Self> {
-                self_attention_forward::<Self>(qkv, q_gain, k_gain, heads, eps, bf16).0
+                self_attention_forward::<Self>(qkv, q_gain, k_gain, heads, eps, mixing).0
             }
 
             fn fused_matmul(
@@ -660,7 +663,7 @@ impl<B: HostTensors, C: CheckpointStrategy> FusedOps for Autodiff<B, C> {
         k_gain: FloatTensor<Self>,
         heads: usize,
         eps: f64,
-        bf16: bool,
+        mixing: Mixing,
     ) -> FloatTensor<Self> {
         let nodes = [qkv.node(), q_gain.node(), k_gain.node()];
         let (qkv, q_gain, k_gain) = (
@@ -675,12 +678,13 @@ impl<B: HostTensors, C: CheckpointStrategy> FusedOps for Autodiff<B, C> {
         {
             OpsKind::Tracked(prep) => {
                 // The f32 kernels under a gradient, as fused_attention.
+                let mixing = mixing.in_f32();
                 let (out, state) =
-                    self_attention_forward::<B>(qkv, q_gain, k_gain, heads, eps, false);
+                    self_attention_forward::<B>(qkv, q_gain, k_gain, heads, eps, mixing);
                 prep.finish(state, out)
             }
             OpsKind::UnTracked(prep) => {
-                prep.finish(self_attention_forward::<B>(qkv, q_gain, k_gain, heads, eps, bf16).0)
+                prep.finish(self_attention_forward::<B>(qkv, q_gain, k_gain, heads, eps, mixing).0)
             }
         }
     }

@@ -1,6 +1,7 @@
 //! Multi-head self-attention from the joint projection as it lies, on host slices, forward and
 //! backward: `qkv` `[B, T, 3, H, d_h]` in, the heads' outputs `[B, T, H, d_h]` out, with
-//! RMSNorm on the queries and keys (QK-norm) on the way.
+//! RMSNorm on the queries and keys (QK-norm) on the way, and softmax or linear attention
+//! ([`Mixing`]) in each head.
 //!
 //! Composed from Burn's ops, a block's attention permutes `qkv` into head-major order, narrows
 //! out `q`, `k` and `v`, normalises two of them and merges the heads back: two copies on one
@@ -12,7 +13,38 @@
 use crate::attention::{self, Dims};
 use crate::bf16::Bf16Kernel;
 use crate::buffer::{filled, filled_with};
+use crate::linear_attention::{self, FeatureMap};
 use crate::norm::{self, NormKind};
+
+/// What each head computes from its normalised queries and keys and its values.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Mixing {
+    /// `softmax(q k^T / sqrt(d_h)) v` (the teacher's blocks). With `bf16`, its two products
+    /// take bf16 operands where the CPU's bf16 kernel has an attention path and no gradient is
+    /// needed (see [`attention::forward_bf16`]).
+    Softmax {
+        /// bf16 products when no gradient is needed.
+        bf16: bool,
+    },
+    /// Linear attention with `feature_map` and `eps` in its normaliser (the student's
+    /// stitched blocks; see [`linear_attention`]).
+    Linear {
+        /// `phi`, on the queries and keys.
+        feature_map: FeatureMap,
+        /// Added to each row's normaliser.
+        eps: f64,
+    },
+}
+
+impl Mixing {
+    /// The same mixing with its products in f32: what runs under a gradient.
+    pub(crate) fn in_f32(self) -> Self {
+        match self {
+            Self::Softmax { .. } => Self::Softmax { bf16: false },
+            linear => linear,
+        }
+    }
+}
 
 /// Sizes of a multi-head self-attention.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -88,49 +120,56 @@ impl Heads {
 }
 
 /// What the backward pass reads of the forward's: the normalised queries and keys, the values,
-/// the heads' outputs (all head-major, `[B H, T, d_h]`) and each query row's log-sum-exp.
+/// the heads' outputs (all head-major, `[B H, T, d_h]`), and one value per query row: its
+/// log-sum-exp (softmax) or its normaliser (linear).
 #[derive(Clone, Debug)]
 pub struct Saved {
     q: Vec<f32>,
     k: Vec<f32>,
     v: Vec<f32>,
     o: Vec<f32>,
-    lse: Vec<f32>,
+    rows: Vec<f32>,
 }
 
-/// The heads' outputs `[B, T, H, d_h]` of `softmax(q k^T / sqrt(d_h)) v` per head, where
-/// `q = RMSNorm(q_raw) q_gain`, `k = RMSNorm(k_raw) k_gain` and `q_raw`, `k_raw`, `v` are the
-/// three parts of `qkv` `[B, T, 3, H, d_h]`; and what [`backward`] needs. With `bf16`, the
-/// attention's products go through `bf16`'s kernel ([`attention::forward_bf16`]).
+/// The heads' outputs `[B, T, H, d_h]` of `mixing` per head on `q = RMSNorm(q_raw) q_gain`,
+/// `k = RMSNorm(k_raw) k_gain` and `v`, where `q_raw`, `k_raw`, `v` are the three parts of
+/// `qkv` `[B, T, 3, H, d_h]`; and what [`backward`] needs.
 pub fn forward(
     qkv: &[f32],
     q_gain: &[f32],
     k_gain: &[f32],
     eps: f32,
     l: Heads,
-    bf16: Option<Bf16Kernel>,
+    mixing: Mixing,
 ) -> (Vec<f32>, Saved) {
     l.check(qkv, q_gain, k_gain);
     let q = split(qkv, 0, Some(q_gain), eps, l);
     let k = split(qkv, 1, Some(k_gain), eps, l);
     let v = split(qkv, 2, None, eps, l);
-    let scale = 1.0 / (l.head_dim as f32).sqrt();
-    let (o, lse) = match bf16 {
-        Some(kernel) => attention::forward_bf16(kernel, &q, &k, &v, l.attention(), scale),
-        None => attention::forward(&q, &k, &v, l.attention(), scale),
+    let (dims, scale) = (l.attention(), 1.0 / (l.head_dim as f32).sqrt());
+    let (o, rows) = match mixing {
+        Mixing::Softmax { bf16: true } => {
+            attention::forward_bf16(Bf16Kernel::chosen(), &q, &k, &v, dims, scale)
+        }
+        Mixing::Softmax { bf16: false } => attention::forward(&q, &k, &v, dims, scale),
+        Mixing::Linear { feature_map, eps } => {
+            linear_attention::forward(&q, &k, &v, dims, feature_map, eps as f32)
+        }
     };
     let out = merge(&o, l);
-    (out, Saved { q, k, v, o, lse })
+    (out, Saved { q, k, v, o, rows })
 }
 
-/// The gradients `(d qkv, d q_gain, d k_gain)` of [`forward`] given its output's gradient
-/// `grad` (`[B, T, H, d_h]`).
+/// The gradients `(d qkv, d q_gain, d k_gain)` of [`forward`] with `mixing` (in f32) given its
+/// output's gradient `grad` (`[B, T, H, d_h]`).
+#[allow(clippy::too_many_arguments)]
 pub fn backward(
     qkv: &[f32],
     q_gain: &[f32],
     k_gain: &[f32],
     eps: f32,
     l: Heads,
+    mixing: Mixing,
     saved: &Saved,
     grad: &[f32],
 ) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
@@ -141,10 +180,15 @@ pub fn backward(
         "self-attention: the output's gradient has {} values, expected {l:?}",
         grad.len()
     );
-    let Saved { q, k, v, o, lse } = saved;
-    let scale = 1.0 / (l.head_dim as f32).sqrt();
+    let Saved { q, k, v, o, rows } = saved;
+    let (dims, scale) = (l.attention(), 1.0 / (l.head_dim as f32).sqrt());
     let grad = unmerge(grad, l);
-    let (dq, dk, dv) = attention::backward(q, k, v, o, lse, &grad, l.attention(), scale);
+    let (dq, dk, dv) = match mixing {
+        Mixing::Softmax { .. } => attention::backward(q, k, v, o, rows, &grad, dims, scale),
+        Mixing::Linear { feature_map, .. } => {
+            linear_attention::backward(q, k, v, o, rows, &grad, dims, feature_map)
+        }
+    };
     join(qkv, [q_gain, k_gain], eps, [&dq, &dk, &dv], l)
 }
 
@@ -251,39 +295,60 @@ mod tests {
     };
 
     /// `sum(forward(qkv, gains) * w)` in f64 from the f32 kernel.
-    fn loss(qkv: &[f32], q_gain: &[f32], k_gain: &[f32], w: &[f32]) -> f64 {
-        let (out, _) = forward(qkv, q_gain, k_gain, 1e-5, L, None);
+    fn loss(qkv: &[f32], q_gain: &[f32], k_gain: &[f32], w: &[f32], mixing: Mixing) -> f64 {
+        let (out, _) = forward(qkv, q_gain, k_gain, 1e-5, L, mixing);
         out.iter().zip(w).map(|(o, w)| *o as f64 * *w as f64).sum()
     }
 
     /// The backward pass against central finite differences of the forward, for every value
-    /// of `qkv` and of both gains.
+    /// of `qkv` and of both gains, with each mixing and feature map. ReLU's kink at 0 would
+    /// spoil the differences of the values near it, so its inputs are all positive there (its
+    /// zero branch is checked against Burn's ops in `tests/fused.rs`).
     #[test]
     fn gradients_match_finite_differences() {
-        let qkv = values(3 * L.len(), 1);
+        let signed = values(3 * L.len(), 1);
         let (q_gain, k_gain) = (values(4, 2), values(4, 3));
         let q_gain: Vec<f32> = q_gain.iter().map(|g| g + 1.5).collect();
         let k_gain: Vec<f32> = k_gain.iter().map(|g| g + 1.5).collect();
         let w = values(L.len(), 4);
-        let (_, saved) = forward(&qkv, &q_gain, &k_gain, 1e-5, L, None);
-        let (dqkv, dq_gain, dk_gain) = backward(&qkv, &q_gain, &k_gain, 1e-5, L, &saved, &w);
-        let h = 1e-2;
-        let numeric = |which: usize, i: usize| {
-            let at = |delta: f32| {
-                let mut inputs = [qkv.clone(), q_gain.clone(), k_gain.clone()];
-                inputs[which][i] += delta;
-                let [x, g, k] = &inputs;
-                loss(x, g, k, &w)
-            };
-            (at(h) - at(-h)) / (2.0 * h as f64)
+        let linear = |feature_map| Mixing::Linear {
+            feature_map,
+            eps: 1e-6,
         };
-        for (which, analytic) in [dqkv, dq_gain, dk_gain].iter().enumerate() {
-            for (i, &a) in analytic.iter().enumerate() {
-                let n = numeric(which, i);
-                assert!(
-                    (a as f64 - n).abs() < 2e-3 + 2e-2 * n.abs(),
-                    "input {which}, value {i}: backward {a}, finite difference {n}"
-                );
+        let mixings = [
+            Mixing::Softmax { bf16: false },
+            linear(FeatureMap::Relu),
+            linear(FeatureMap::Elu1),
+        ];
+        for mixing in mixings {
+            let qkv: Vec<f32> = match mixing {
+                Mixing::Linear {
+                    feature_map: FeatureMap::Relu,
+                    ..
+                } => signed.iter().map(|x| x + 1.5).collect(),
+                _ => signed.clone(),
+            };
+            let (_, saved) = forward(&qkv, &q_gain, &k_gain, 1e-5, L, mixing);
+            let (dqkv, dq_gain, dk_gain) =
+                backward(&qkv, &q_gain, &k_gain, 1e-5, L, mixing, &saved, &w);
+            let h = 1e-2;
+            let numeric = |which: usize, i: usize| {
+                let at = |delta: f32| {
+                    let mut inputs = [qkv.clone(), q_gain.clone(), k_gain.clone()];
+                    inputs[which][i] += delta;
+                    let [x, g, k] = &inputs;
+                    loss(x, g, k, &w, mixing)
+                };
+                (at(h) - at(-h)) / (2.0 * h as f64)
+            };
+            for (which, analytic) in [dqkv, dq_gain, dk_gain].iter().enumerate() {
+                for (i, &a) in analytic.iter().enumerate() {
+                    let n = numeric(which, i);
+                    assert!(
+                        (a as f64 - n).abs() < 2e-3 + 2e-2 * n.abs(),
+                        "{mixing:?}, input {which}, value {i}: backward {a}, finite difference {n}"
+                    );
+                }
             }
         }
     }

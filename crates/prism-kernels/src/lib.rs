@@ -39,6 +39,7 @@ mod elementwise;
 mod extension;
 mod heads;
 mod host;
+mod linear_attention;
 pub mod math;
 mod matrix;
 mod norm;
@@ -54,6 +55,8 @@ use burn::tensor::{DType, Device, Tensor};
 pub use adamw::AdamWStep;
 pub use bf16::Bf16Kernel;
 pub use extension::FusedOps;
+pub use heads::Mixing;
+pub use linear_attention::FeatureMap;
 
 /// Whether `x` runs the fused kernels: f32 on flex or ndarray (with or without autodiff).
 pub fn is_fused<const D: usize>(x: &Tensor<D>) -> bool {
@@ -291,23 +294,24 @@ pub fn adamw_step<const D: usize>(
     )
 }
 
-/// Multi-head softmax self-attention with QK-norm, from the joint projection `qkv`
-/// `[B, T, 3 H d_h]` (queries, keys and values, head by head within each) to the heads' outputs
-/// `[B, T, H d_h]`, as the output projection reads them: `attention(RMSNorm(q) q_gain,
-/// RMSNorm(k) k_gain, v)` per head, the norms over `d_h` with `eps`. `bf16` as in
-/// [`attention_bf16`].
+/// Multi-head self-attention with QK-norm, from the joint projection `qkv` `[B, T, 3 H d_h]`
+/// (queries, keys and values, head by head within each) to the heads' outputs `[B, T, H d_h]`,
+/// as the output projection reads them: `mixing` per head on `RMSNorm(q) q_gain`,
+/// `RMSNorm(k) k_gain` and `v`, the norms over `d_h` with `eps`. Softmax attention with `bf16`
+/// as in [`attention_bf16`].
 ///
 /// On the CPU backends in f32: one host kernel, forward and backward, that reads `qkv` and
 /// writes its gradient in their own layout (the composition permutes, narrows and merges with
-/// a copy or a zeroed gradient each). Elsewhere: that composition ([`unfused::heads_attention`])
-/// around [`rms_norm`] and [`attention`]'s paths.
+/// a copy or a zeroed gradient each, and linear attention is a dozen graph nodes). Elsewhere:
+/// that composition ([`unfused::heads_attention`]) around [`rms_norm`], and [`attention`]'s
+/// paths or [`unfused::linear_attention`].
 pub fn self_attention(
     qkv: Tensor<3>,
     q_gain: Tensor<1>,
     k_gain: Tensor<1>,
     heads: usize,
     eps: f64,
-    bf16: bool,
+    mixing: Mixing,
 ) -> Tensor<3> {
     if is_fused(&qkv) && q_gain.dtype() == DType::F32 && k_gain.dtype() == DType::F32 {
         return Tensor::from_dispatch(<Dispatch as FusedOps>::fused_self_attention(
@@ -316,11 +320,17 @@ pub fn self_attention(
             k_gain.into_dispatch(),
             heads,
             eps,
-            bf16,
+            mixing,
         ));
     }
     unfused::heads_attention(qkv, heads, |q, k, v| {
-        attention_in(rms_norm(q, q_gain, eps), rms_norm(k, k_gain, eps), v, bf16)
+        let (q, k) = (rms_norm(q, q_gain, eps), rms_norm(k, k_gain, eps));
+        match mixing {
+            Mixing::Softmax { bf16 } => attention_in(q, k, v, bf16),
+            Mixing::Linear { feature_map, eps } => {
+                unfused::linear_attention(q, k, v, feature_map, eps)
+            }
+        }
     })
 }
 

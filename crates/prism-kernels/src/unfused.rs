@@ -3,7 +3,9 @@
 //! against.
 
 use burn::tensor::activation::softmax;
-use burn::tensor::{DType, Tensor};
+use burn::tensor::{DType, FloatDType, Tensor};
+
+use crate::{FeatureMap, Mixing};
 
 /// `GELU(x)` (Burn's).
 pub fn gelu<const D: usize>(x: Tensor<D>) -> Tensor<D> {
@@ -61,18 +63,64 @@ pub fn heads_attention(
     out.swap_dims(1, 2).reshape([batch, tokens, width])
 }
 
-/// Multi-head softmax self-attention with QK-norm from the joint projection (see
-/// `prism_kernels::self_attention`), composed from Burn's ops.
+/// Multi-head self-attention with QK-norm from the joint projection (see
+/// `prism_kernels::self_attention`), composed from Burn's ops (softmax attention in f32 whatever
+/// `mixing` asks).
 pub fn self_attention(
     qkv: Tensor<3>,
     q_gain: Tensor<1>,
     k_gain: Tensor<1>,
     heads: usize,
     eps: f64,
+    mixing: Mixing,
 ) -> Tensor<3> {
     heads_attention(qkv, heads, |q, k, v| {
-        attention(rms_norm(q, q_gain, eps), rms_norm(k, k_gain, eps), v)
+        let (q, k) = (rms_norm(q, q_gain, eps), rms_norm(k, k_gain, eps));
+        match mixing {
+            Mixing::Softmax { .. } => attention(q, k, v),
+            Mixing::Linear { feature_map, eps } => linear_attention(q, k, v, feature_map, eps),
+        }
     })
+}
+
+/// Linear attention (SANA; paper Sec. 3.4) on `[B, H, T, d_h]` tensors:
+///
+/// `out_i = phi(q_i) (sum_j phi(k_j)^T v_j) / (phi(q_i) . sum_j phi(k_j) + eps)`
+///
+/// computed right to left, so the cost is `O(T d_h^2)` per head and no `T x T` matrix is ever
+/// formed. The sums are accumulated in f32 whatever the input precision; the result is cast
+/// back to the input's dtype.
+pub fn linear_attention(
+    q: Tensor<4>,
+    k: Tensor<4>,
+    v: Tensor<4>,
+    feature_map: FeatureMap,
+    eps: f64,
+) -> Tensor<4> {
+    let dtype = q.dtype();
+    let to_f32 = |x: Tensor<4>| {
+        if x.dtype() == DType::F32 {
+            x
+        } else {
+            x.cast(FloatDType::F32)
+        }
+    };
+    let phi_q = feature_map.apply(to_f32(q));
+    let phi_k = feature_map.apply(to_f32(k));
+    let v = to_f32(v);
+    // [B, H, d_h, d_h]: sum_j phi(k_j)^T v_j.
+    let kv = phi_k.clone().swap_dims(2, 3).matmul(v);
+    // [B, H, 1, d_h]: sum_j phi(k_j).
+    let k_sum = phi_k.sum_dim(2);
+    let numerator = phi_q.clone().matmul(kv);
+    // [B, H, T, 1]: phi(q_i) . sum_j phi(k_j).
+    let normaliser = (phi_q * k_sum).sum_dim(3);
+    let out = numerator / (normaliser + eps);
+    if dtype == DType::F32 {
+        out
+    } else {
+        out.cast(dtype)
+    }
 }
 
 /// `x w` with both operands rounded to bf16 and an f32 result, as Burn's matmul of the

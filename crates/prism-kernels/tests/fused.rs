@@ -9,8 +9,9 @@ use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::{LinearConfig, PaddingConfig2d};
 use burn::tensor::{Device, Distribution, Tensor};
 use prism_kernels::{
-    Bf16Kernel, attention, attention_bf16, conv2d, gelu, is_fused, is_fused_conv2d, layer_norm,
-    linear, matmul_bf16, matmul_left, rms_norm, self_attention, unfused,
+    Bf16Kernel, FeatureMap, Mixing, attention, attention_bf16, conv2d, gelu, is_fused,
+    is_fused_conv2d, layer_norm, linear, matmul_bf16, matmul_left, rms_norm, self_attention,
+    unfused,
 };
 
 fn devices() -> [(&'static str, Device); 2] {
@@ -182,23 +183,34 @@ fn attention_takes_strided_inputs() {
     );
 }
 
-/// The joint self-attention against Burn's ops (permute, narrow, QK-norm, attention, merge):
-/// values, and the gradients of `qkv` and of both gains. 70 tokens: a full query block and a
-/// partial one; 2 heads of 16.
+/// The joint self-attention against Burn's ops (permute, narrow, QK-norm, attention, merge),
+/// softmax and linear with both feature maps: values, and the gradients of `qkv` and of both
+/// gains. 70 tokens: a full query block and a partial one; 2 heads of 16.
 #[test]
 fn self_attention_matches_burn() {
     let gain = |g: Tensor<3>| g.reshape([16]) + 1.0;
-    check::<3, 3>(
-        "self_attention",
-        [vec![2, 70, 96], vec![1, 1, 16], vec![1, 1, 16]],
-        |[qkv, q_gain, k_gain]| {
-            self_attention(qkv * 2.0, gain(q_gain), gain(k_gain), 2, 1e-5, false)
-        },
-        |[qkv, q_gain, k_gain]| {
-            unfused::self_attention(qkv * 2.0, gain(q_gain), gain(k_gain), 2, 1e-5)
-        },
-        2e-5,
-    );
+    let linear = |feature_map| Mixing::Linear {
+        feature_map,
+        eps: 1e-6,
+    };
+    let mixings = [
+        Mixing::Softmax { bf16: false },
+        linear(FeatureMap::Relu),
+        linear(FeatureMap::Elu1),
+    ];
+    for mixing in mixings {
+        check::<3, 3>(
+            &format!("self_attention ({mixing:?})"),
+            [vec![2, 70, 96], vec![1, 1, 16], vec![1, 1, 16]],
+            |[qkv, q_gain, k_gain]| {
+                self_attention(qkv * 2.0, gain(q_gain), gain(k_gain), 2, 1e-5, mixing)
+            },
+            |[qkv, q_gain, k_gain]| {
+                unfused::self_attention(qkv * 2.0, gain(q_gain), gain(k_gain), 2, 1e-5, mixing)
+            },
+            2e-5,
+        );
+    }
 }
 
 /// With `bf16`, the joint kernel gives what the composition gives around the bf16 attention
@@ -208,7 +220,8 @@ fn self_attention_in_bf16_matches_the_composition() {
     for (backend, device) in devices() {
         let qkv = random([1, 45, 3 * 3 * 8], &device);
         let (q_gain, k_gain) = (random([8], &device), random([8], &device));
-        let got = self_attention(qkv.clone(), q_gain.clone(), k_gain.clone(), 3, 1e-5, true);
+        let bf16 = Mixing::Softmax { bf16: true };
+        let got = self_attention(qkv.clone(), q_gain.clone(), k_gain.clone(), 3, 1e-5, bf16);
         let want = unfused::heads_attention(qkv, 3, |q, k, v| {
             attention_bf16(rms_norm(q, q_gain, 1e-5), rms_norm(k, k_gain, 1e-5), v)
         });

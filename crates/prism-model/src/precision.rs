@@ -11,7 +11,7 @@
 //! gradient back to `f32` through its cast ([`Prism::with_compute_precision`]). The
 //! statistics of LayerNorm and the QK RMSNorms and the sums of linear attention are taken in
 //! `f32` whatever the compute precision (see [`prism_kernels::unfused`] and
-//! [`crate::stages::attention::linear_attention`]).
+//! [`prism_kernels::unfused::linear_attention`]).
 
 use std::fmt;
 use std::str::FromStr;

@@ -4,8 +4,9 @@
 use burn::config::Config;
 use burn::module::Module;
 use burn::nn::{Initializer, Linear, LinearConfig, RmsNorm, RmsNormConfig};
-use burn::tensor::activation::relu;
-use burn::tensor::{DType, Device, FloatDType, Tensor};
+use burn::tensor::{Device, Tensor};
+pub use prism_kernels::FeatureMap;
+use prism_kernels::Mixing;
 use serde::{Deserialize, Serialize};
 
 use super::linear;
@@ -37,68 +38,6 @@ impl AttentionKind {
             Self::Full => "full",
             Self::Linear => "linear",
         }
-    }
-}
-
-/// The feature map `phi` of linear attention, applied to queries and keys.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum FeatureMap {
-    /// `phi(x) = max(x, 0)`, as in SANA (the default).
-    #[default]
-    Relu,
-    /// `phi(x) = elu(x) + 1`, the feature map the paper names as an example.
-    Elu1,
-}
-
-impl FeatureMap {
-    /// Applies `phi` element-wise.
-    pub fn apply<const D: usize>(self, x: Tensor<D>) -> Tensor<D> {
-        match self {
-            Self::Relu => relu(x),
-            // elu(x) + 1 = x + 1 for x > 0 and exp(x) for x <= 0.
-            Self::Elu1 => relu(x.clone()) + x.clamp_max(0.0).exp(),
-        }
-    }
-}
-
-/// Linear attention (SANA; paper Sec. 3.4) on `[B, H, T, d_h]` tensors:
-///
-/// `out_i = phi(q_i) (sum_j phi(k_j)^T v_j) / (phi(q_i) . sum_j phi(k_j) + eps)`
-///
-/// computed right to left, so the cost is `O(T d_h^2)` per head and no `T x T` matrix is ever
-/// formed. The sums are accumulated in f32 whatever the input precision; the result is cast
-/// back to the input's dtype.
-pub(crate) fn linear_attention(
-    q: Tensor<4>,
-    k: Tensor<4>,
-    v: Tensor<4>,
-    feature_map: FeatureMap,
-    eps: f64,
-) -> Tensor<4> {
-    let dtype = q.dtype();
-    let to_f32 = |x: Tensor<4>| {
-        if x.dtype() == DType::F32 {
-            x
-        } else {
-            x.cast(FloatDType::F32)
-        }
-    };
-    let phi_q = feature_map.apply(to_f32(q));
-    let phi_k = feature_map.apply(to_f32(k));
-    let v = to_f32(v);
-    // [B, H, d_h, d_h]: sum_j phi(k_j)^T v_j.
-    let kv = phi_k.clone().swap_dims(2, 3).matmul(v);
-    // [B, H, 1, d_h]: sum_j phi(k_j).
-    let k_sum = phi_k.sum_dim(2);
-    let numerator = phi_q.clone().matmul(kv);
-    // [B, H, T, 1]: phi(q_i) . sum_j phi(k_j).
-    let normaliser = (phi_q * k_sum).sum_dim(3);
-    let out = numerator / (normaliser + eps);
-    if dtype == DType::F32 {
-        out
-    } else {
-        out.cast(dtype)
     }
 }
 
@@ -221,32 +160,29 @@ impl SelfAttention {
     }
 
     /// Self-attention of `x` (`[B, T, d]`) with this layer's kind: `q = RMSNorm(x W_q)`,
-    /// `k = RMSNorm(x W_k)`, `v = x W_v` per head, attended and projected out. Full attention
+    /// `k = RMSNorm(x W_k)`, `v = x W_v` per head, attended and projected out. The attention
     /// with its QK-norms runs as one fused kernel on the CPU backends
-    /// ([`prism_kernels::self_attention`]) and as Burn's ops elsewhere; linear attention as
-    /// Burn's ops around the fused norms.
+    /// ([`prism_kernels::self_attention`]) and as Burn's ops elsewhere.
     pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
         let qkv = linear(&self.qkv, x, self.bf16_products);
-        let (q_gain, k_gain) = (self.q_norm.gamma.val(), self.k_norm.gamma.val());
-        // Both norms are built with the config's `norm_eps`.
-        let eps = self.q_norm.epsilon;
-        let heads_out = match self.kind {
-            AttentionKind::Full => prism_kernels::self_attention(
-                qkv,
-                q_gain,
-                k_gain,
-                self.heads,
-                eps,
-                self.bf16_products,
-            ),
-            AttentionKind::Linear => {
-                prism_kernels::unfused::heads_attention(qkv, self.heads, |q, k, v| {
-                    let q = prism_kernels::rms_norm(q, q_gain, eps);
-                    let k = prism_kernels::rms_norm(k, k_gain, eps);
-                    linear_attention(q, k, v, self.feature_map, self.linear_eps)
-                })
-            }
+        let mixing = match self.kind {
+            AttentionKind::Full => Mixing::Softmax {
+                bf16: self.bf16_products,
+            },
+            AttentionKind::Linear => Mixing::Linear {
+                feature_map: self.feature_map,
+                eps: self.linear_eps,
+            },
         };
+        // Both norms are built with the config's `norm_eps`.
+        let heads_out = prism_kernels::self_attention(
+            qkv,
+            self.q_norm.gamma.val(),
+            self.k_norm.gamma.val(),
+            self.heads,
+            self.q_norm.epsilon,
+            mixing,
+        );
         linear(&self.out, heads_out, self.bf16_products)
     }
 }
@@ -336,7 +272,13 @@ mod tests {
         let relu: fn(f32) -> f32 = |x| x.max(0.0);
         let elu1: fn(f32) -> f32 = |x| if x > 0.0 { x + 1.0 } else { x.exp() };
         for (map, phi) in [(FeatureMap::Relu, relu), (FeatureMap::Elu1, elu1)] {
-            let got = linear_attention(q.clone(), k.clone(), v.clone(), map, 1e-6);
+            let got = prism_kernels::unfused::linear_attention(
+                q.clone(),
+                k.clone(),
+                v.clone(),
+                map,
+                1e-6,
+            );
             assert_eq!(got.dims(), SHAPE);
             let want = linear_reference(&qv, &kv, &vv, phi, 1e-6);
             let err = max_abs_diff(&values(&got), &want);
