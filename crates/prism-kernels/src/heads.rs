@@ -14,7 +14,7 @@ use crate::attention::{self, Dims};
 use crate::bf16::Bf16Kernel;
 use crate::buffer::{filled, filled_with};
 use crate::linear_attention::{self, FeatureMap};
-use crate::norm::{self, NormKind};
+use crate::norm::{self, NormKind, rows_per_task};
 
 /// What each head computes from its normalised queries and keys and its values.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -77,11 +77,6 @@ impl Heads {
     /// Values of one head-major tensor (`B H T d_h`).
     fn len(&self) -> usize {
         self.batch * self.tokens * self.width()
-    }
-
-    /// Token rows (`B T`) per parallel task over rows of `values` each: about 16k values.
-    fn rows_per_task(&self, values: usize) -> usize {
-        ((1 << 14) / values.max(1)).max(1)
     }
 
     /// Where the `d_h` values of head `h` of part `part` (0 `q`, 1 `k`, 2 `v`) of token `t` of
@@ -211,7 +206,7 @@ fn split(qkv: &[f32], part: usize, gain: Option<&[f32]>, eps: f32, l: Heads) -> 
 /// The heads' outputs from head-major order `[B H, T, d_h]` to token-major `[B, T, H, d_h]`.
 fn merge(o: &[f32], l: Heads) -> Vec<f32> {
     let (width, d) = (l.width(), l.head_dim);
-    let rows = l.rows_per_task(width);
+    let rows = rows_per_task(width);
     filled(l.len(), rows * width, |task, out| {
         for (r, row) in out.chunks_exact_mut(width).enumerate() {
             let bt = task * rows + r;
@@ -244,7 +239,7 @@ fn join(
     l: Heads,
 ) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
     let (width, d) = (l.width(), l.head_dim);
-    let rows = l.rows_per_task(3 * width);
+    let rows = rows_per_task(3 * width);
     let (dqkv, parts) = filled_with(3 * l.len(), rows * 3 * width, |task, out| {
         let mut dgains = [vec![0.0; d], vec![0.0; d]];
         for (r, row) in out.chunks_exact_mut(3 * width).enumerate() {

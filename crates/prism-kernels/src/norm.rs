@@ -17,7 +17,7 @@ pub enum NormKind {
 }
 
 /// Rows per parallel task for a row width `d`: about 16k elements.
-fn rows_per_task(d: usize) -> usize {
+pub(crate) fn rows_per_task(d: usize) -> usize {
     ((1 << 14) / d.max(1)).max(1)
 }
 
