@@ -50,19 +50,24 @@ pub fn forward(q: &[f32], k: &[f32], v: &[f32], dims: Dims, scale: f32) -> (Vec<
     each_block(
         [q, k, v],
         dims,
-        |h| h * dims.per_head()..(h + 1) * dims.per_head(),
+        // The head's `k^T`, row-major, shared by its blocks of queries.
+        |h| {
+            let span = h * dims.per_head()..(h + 1) * dims.per_head();
+            let keys = View::transposed(&k[span.clone()], head_dim, tokens).to_rows();
+            (span, keys)
+        },
         // One score buffer per worker thread, reused by its blocks (gemm overwrites it).
         || vec![0.0; BLOCK.min(tokens) * tokens],
-        |span, b, o, lse, p| {
+        |(span, keys), b, o, lse, p| {
             let rows = lse.len();
-            let (k, v) = (&k[span.clone()], &v[span.clone()]);
+            let v = &v[span.clone()];
             let q = &q[span.start + b * BLOCK * head_dim..][..rows * head_dim];
             let p = &mut p[..rows * tokens];
             matmul(
                 p,
                 false,
                 View::rows(q, rows, head_dim),
-                View::transposed(k, head_dim, tokens),
+                View::rows(keys, head_dim, tokens),
                 scale,
             );
             softmax_rows(p, tokens, lse);
@@ -227,6 +232,9 @@ pub fn backward(
             let (q, k, v) = (&q[span.clone()], &k[span.clone()], &v[span.clone()]);
             let (o, grad) = (&o[span.clone()], &grad[span]);
             let lse = &lse[h * tokens..(h + 1) * tokens];
+            // `k^T` and `v^T` row-major, shared by the head's blocks.
+            let keys = View::transposed(k, head_dim, tokens).to_rows();
+            let values = View::transposed(v, head_dim, tokens).to_rows();
             let mut p = vec![0.0; BLOCK.min(tokens) * tokens];
             let mut ds = vec![0.0; p.len()];
             for start in (0..tokens).step_by(BLOCK) {
@@ -238,7 +246,7 @@ pub fn backward(
                     p,
                     false,
                     View::rows(q_b, rows, head_dim),
-                    View::transposed(k, head_dim, tokens),
+                    View::rows(&keys, head_dim, tokens),
                     scale,
                 );
                 probabilities(p, tokens, &lse[start..start + rows]);
@@ -253,7 +261,7 @@ pub fn backward(
                     ds,
                     false,
                     View::rows(g_b, rows, head_dim),
-                    View::transposed(v, head_dim, tokens),
+                    View::rows(&values, head_dim, tokens),
                     1.0,
                 );
                 score_gradient(p, ds, o_b, g_b, head_dim, scale);

@@ -60,6 +60,38 @@ impl<'a> View<'a> {
     pub(crate) fn at(&self, r: usize, c: usize) -> f32 {
         self.data[r * self.row_stride + c * self.col_stride]
     }
+
+    /// The view's values copied out row-major (of a transposed view: the transpose).
+    ///
+    /// `gemm` multiplies fastest with its right operand row-major: given one transposed, it
+    /// gathers the operand's columns value by value into its panels, on every call. A
+    /// transposed operand that several products share (a head's keys, for each block of its
+    /// queries) is cheaper copied out once.
+    pub(crate) fn to_rows(self) -> Vec<f32> {
+        const TILE: usize = 16;
+        self.check();
+        let (rows, cols) = (self.rows, self.cols);
+        let mut out = vec![0.0; rows * cols];
+        // Each tile is read down its columns (contiguous in a transposed view) into a local
+        // block, then written out along its rows.
+        let mut tile = [[0.0f32; TILE]; TILE];
+        for r0 in (0..rows).step_by(TILE) {
+            let height = TILE.min(rows - r0);
+            for c0 in (0..cols).step_by(TILE) {
+                let width = TILE.min(cols - c0);
+                for c in 0..width {
+                    let column = &self.data[r0 * self.row_stride + (c0 + c) * self.col_stride..];
+                    for (r, row) in tile.iter_mut().enumerate().take(height) {
+                        row[c] = column[r * self.row_stride];
+                    }
+                }
+                for (r, row) in tile.iter().enumerate().take(height) {
+                    out[(r0 + r) * cols + c0..][..width].copy_from_slice(&row[..width]);
+                }
+            }
+        }
+        out
+    }
 }
 
 /// `dst (row-major lhs.rows x rhs.cols) = [dst +] scale * lhs rhs`, single-threaded (the
@@ -147,5 +179,28 @@ unsafe fn gemm_raw(
             false,
             parallelism,
         );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A row-major view copies out as itself, a transposed one as its transpose, on sizes
+    /// that leave partial tiles.
+    #[test]
+    fn to_rows_copies_the_values_row_major() {
+        for (rows, cols) in [(1, 1), (3, 40), (17, 35), (32, 16)] {
+            let data: Vec<f32> = (0..rows * cols).map(|i| i as f32).collect();
+            assert_eq!(View::rows(&data, rows, cols).to_rows(), data);
+            let t = View::transposed(&data, cols, rows).to_rows();
+            for (r, c) in (0..cols).flat_map(|r| (0..rows).map(move |c| (r, c))) {
+                assert_eq!(
+                    t[r * rows + c],
+                    data[c * cols + r],
+                    "({r}, {c}) of {rows} x {cols}"
+                );
+            }
+        }
     }
 }
