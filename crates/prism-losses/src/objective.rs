@@ -61,6 +61,9 @@ pub struct LossWeights {
     /// paper: 0 there; see [`laplacian_loss`]).
     #[config(default = 0.0)]
     pub laplacian: f64,
+    /// `L_lap`'s weight inside `L_gs` alone, where it differs from `laplacian` (unset: the
+    /// same): the 3DGS render can be held smoother than the NVS decoder's output.
+    pub gs_laplacian: Option<f64>,
 }
 
 /// Inputs of `L_opacity` (see [`opacity_loss`]).
@@ -297,10 +300,24 @@ impl Objective {
             terms.push(("nvs_holes", value));
         }
         let images = [
-            ("nvs_mse", "nvs_lpips", "nvs_laplacian", w.nvs, inputs.nvs),
-            ("gs_mse", "gs_lpips", "gs_laplacian", w.gs, inputs.gs),
+            (
+                "nvs_mse",
+                "nvs_lpips",
+                "nvs_laplacian",
+                w.nvs,
+                w.laplacian,
+                inputs.nvs,
+            ),
+            (
+                "gs_mse",
+                "gs_lpips",
+                "gs_laplacian",
+                w.gs,
+                w.gs_laplacian.unwrap_or(w.laplacian),
+                inputs.gs,
+            ),
         ];
-        for (mse_name, lpips_name, laplacian_name, weight, pair) in images {
+        for (mse_name, lpips_name, laplacian_name, weight, laplacian, pair) in images {
             let Some(ImagePair { pred, gt }) = pair.filter(|_| weight != 0.0) else {
                 continue;
             };
@@ -312,9 +329,9 @@ impl Objective {
                 add(weight * w.lpips, &value);
                 terms.push((lpips_name, value));
             }
-            if w.laplacian != 0.0 {
+            if laplacian != 0.0 {
                 let value = laplacian_loss(pred, gt);
-                add(weight * w.laplacian, &value);
+                add(weight * laplacian, &value);
                 terms.push((laplacian_name, value));
             }
         }
@@ -466,6 +483,17 @@ mod tests {
             off.total.into_scalar::<f64>(),
         );
         assert!((total - (mse + 1.5 * 3.0 * term)).abs() < 1e-6, "{total}");
+        // `gs_laplacian` weighs `L_gs`'s term alone: 3 in `L_nvs`, 2 in `L_gs` (weight 0.5).
+        let apart = Objective::new(weights(3.0).with_gs_laplacian(Some(2.0)), None)
+            .unwrap()
+            .forward(inputs.clone())
+            .unwrap()
+            .total
+            .into_scalar::<f64>();
+        assert!(
+            (apart - (mse + (3.0 + 0.5 * 2.0) * term)).abs() < 1e-6,
+            "{apart}"
+        );
     }
 
     /// `truth` with channel 0's pixel (2, 1) 0.1 brighter, in images `w` pixels wide.
