@@ -73,16 +73,18 @@ impl<'a> View<'a> {
         let (rows, cols) = (self.rows, self.cols);
         let mut out = vec![0.0; rows * cols];
         // Each tile is read down its columns (contiguous in a transposed view) into a local
-        // block, then written out along its rows.
+        // block, then written out along its rows; a band of columns is finished before the
+        // next, so each is read from memory once.
         let mut tile = [[0.0f32; TILE]; TILE];
-        for r0 in (0..rows).step_by(TILE) {
-            let height = TILE.min(rows - r0);
-            for c0 in (0..cols).step_by(TILE) {
-                let width = TILE.min(cols - c0);
+        for c0 in (0..cols).step_by(TILE) {
+            let width = TILE.min(cols - c0);
+            for r0 in (0..rows).step_by(TILE) {
+                let height = TILE.min(rows - r0);
                 for c in 0..width {
                     let column = &self.data[r0 * self.row_stride + (c0 + c) * self.col_stride..];
-                    for (r, row) in tile.iter_mut().enumerate().take(height) {
-                        row[c] = column[r * self.row_stride];
+                    let column = column.iter().step_by(self.row_stride);
+                    for (row, &x) in tile.iter_mut().zip(column).take(height) {
+                        row[c] = x;
                     }
                 }
                 for (r, row) in tile.iter().enumerate().take(height) {
