@@ -73,8 +73,7 @@ impl<'a> View<'a> {
         let (rows, cols) = (self.rows, self.cols);
         let mut out = vec![0.0; rows * cols];
         // Each tile is read down its columns (contiguous in a transposed view) into a local
-        // block, then written out along its rows; a band of columns is finished before the
-        // next, so each is read from memory once.
+        // block, then written out along its rows.
         let mut tile = [[0.0f32; TILE]; TILE];
         for c0 in (0..cols).step_by(TILE) {
             let width = TILE.min(cols - c0);
@@ -196,11 +195,12 @@ mod tests {
             let data: Vec<f32> = (0..rows * cols).map(|i| i as f32).collect();
             assert_eq!(View::rows(&data, rows, cols).to_rows(), data);
             let t = View::transposed(&data, cols, rows).to_rows();
-            for (r, c) in (0..cols).flat_map(|r| (0..rows).map(move |c| (r, c))) {
+            // `t` is `cols x rows`: its element (i, j) is the data's (j, i).
+            for (i, j) in (0..cols).flat_map(|i| (0..rows).map(move |j| (i, j))) {
                 assert_eq!(
-                    t[r * rows + c],
-                    data[c * cols + r],
-                    "({r}, {c}) of {rows} x {cols}"
+                    t[i * rows + j],
+                    data[j * cols + i],
+                    "({i}, {j}) of the transpose of {rows} x {cols}"
                 );
             }
         }

@@ -66,6 +66,13 @@ pub struct LossWeights {
     pub gs_laplacian: Option<f64>,
 }
 
+impl LossWeights {
+    /// `L_lap`'s weight inside `L_gs`: `gs_laplacian` where set, `laplacian` otherwise.
+    pub fn laplacian_in_gs(&self) -> f64 {
+        self.gs_laplacian.unwrap_or(self.laplacian)
+    }
+}
+
 /// Inputs of `L_opacity` (see [`opacity_loss`]).
 #[derive(Clone, Debug)]
 pub struct OpacityInputs {
@@ -313,7 +320,7 @@ impl Objective {
                 "gs_lpips",
                 "gs_laplacian",
                 w.gs,
-                w.gs_laplacian.unwrap_or(w.laplacian),
+                w.laplacian_in_gs(),
                 inputs.gs,
             ),
         ];

@@ -234,7 +234,7 @@ impl TrainingConfig {
             ("losses.gs_centres", l.gs_centres),
             ("losses.gs_spread", l.gs_spread),
             ("losses.laplacian", l.laplacian),
-            ("losses.gs_laplacian", l.gs_laplacian.unwrap_or(l.laplacian)),
+            ("losses.gs_laplacian", l.laplacian_in_gs()),
         ] {
             if !(value.is_finite() && value >= 0.0) {
                 return fail(field, format!("{value} is not a non-negative number"));
