@@ -14,10 +14,10 @@
 #[path = "atomic_kill/power_cut.rs"]
 mod power_cut;
 
-use std::io::Write;
+use std::io::{BufRead, BufReader, Write};
 use std::path::Path;
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use prism_core::files::{
     STAGED_SUFFIX, recover_dir, replace_dir, with_suffix, write_atomic, write_bytes,
@@ -32,6 +32,13 @@ const FOLDER_FILES: [&str; 3] = ["model.bpk", "optimizer.bpk", "state.json"];
 /// Bytes of one version: an 8-byte version number, then the payload.
 const PAYLOAD: usize = 4 << 20;
 const CHUNK: usize = 64 << 10;
+/// The line a child prints (it runs with `--nocapture`) once it has read its first version,
+/// before it writes anything.
+const STARTED: &str = "atomic_kill child: started";
+/// The line a child prints after each write or replace that returned.
+const WROTE: &str = "atomic_kill child: wrote a version";
+/// Rounds of each kill test: the last one kills after a completed write.
+const ROUNDS: usize = 12;
 
 /// The payload byte of version `v`.
 fn fill(v: u64) -> u8 {
@@ -74,9 +81,11 @@ fn child_rewrites_the_file_forever() {
     };
     let path = Path::new(&path);
     let mut v = complete_version(path);
+    println!("{STARTED}");
     loop {
         v += 1;
         write_atomic(path, |out| write_version(out, v)).unwrap();
+        println!("{WROTE}");
     }
 }
 
@@ -89,13 +98,14 @@ fn a_killed_writer_leaves_the_old_or_the_new_file() {
     write_bytes(&path, &first).unwrap();
     let mut seed = 0x2545_f491_u64;
     let (mut changed, mut kept) = (0, 0);
-    for round in 0..12 {
+    for round in 0..ROUNDS {
         let before = complete_version(&path);
         // A version takes a few ms: killed mid-write or between.
         let child = kill_midway(
             "child_rewrites_the_file_forever",
             TARGET_ENV,
             &path,
+            clock_from(round),
             &mut seed,
         );
         let after = complete_version(&path);
@@ -132,23 +142,36 @@ fn a_killed_writer_leaves_the_old_or_the_new_file() {
     );
 }
 
+/// The child's line after which [`kill_midway`] starts its clock in round `round`: its start,
+/// so that the kill falls at any point of its loop however long the process takes to start,
+/// and in the last round its first completed write, so that every run checks that a completed
+/// write survives the kill (on a slow host the earlier rounds may all end before one).
+fn clock_from(round: usize) -> &'static str {
+    if round + 1 == ROUNDS { WROTE } else { STARTED }
+}
+
 /// Runs `child`, an ignored test of this binary, with `env` naming `target`, and kills it
-/// (SIGKILL on Unix: no destructor, no cleanup runs) after 5 to 60 ms drawn from `seed`.
-/// Returns its process id.
-fn kill_midway(child: &str, env: &str, target: &Path, seed: &mut u64) -> u32 {
+/// (SIGKILL on Unix: no destructor, no cleanup runs) 5 to 60 ms, drawn from `seed`, after it
+/// prints the line `clock_from`. Returns its process id.
+fn kill_midway(child: &str, env: &str, target: &Path, clock_from: &str, seed: &mut u64) -> u32 {
     let mut process = Command::new(std::env::current_exe().unwrap())
-        .args(["--exact", child, "--ignored"])
+        .args(["--exact", child, "--ignored", "--nocapture"])
         .env(env, target)
-        .stdout(Stdio::null())
+        .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
-    *seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
-    let wait = Duration::from_millis(5 + (*seed >> 33) % 56);
-    let start = Instant::now();
-    while start.elapsed() < wait {
-        std::thread::sleep(Duration::from_millis(1));
+    // Kept open until the kill: a child whose stdout is closed would fail on its next line.
+    let mut lines = BufReader::new(process.stdout.take().unwrap()).lines();
+    loop {
+        match lines.next() {
+            Some(Ok(line)) if line == clock_from => break,
+            Some(Ok(_)) => {}
+            _ => panic!("{child} ended before printing {clock_from:?}"),
+        }
     }
+    *seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+    std::thread::sleep(Duration::from_millis(5 + (*seed >> 33) % 56));
     process.kill().unwrap();
     process.wait().unwrap();
     process.id()
@@ -201,12 +224,14 @@ fn child_replaces_the_folder_forever() {
     let dir = Path::new(&dir);
     let staged = with_suffix(dir, STAGED_SUFFIX);
     let mut v = complete_folder(dir);
+    println!("{STARTED}");
     loop {
         v += 1;
         // What a checkpoint's save does: recover, stage, replace.
         recover_dir(dir).unwrap();
         write_folder_version(&staged, v);
         replace_dir(&staged, dir).unwrap();
+        println!("{WROTE}");
     }
 }
 
@@ -217,13 +242,14 @@ fn a_killed_folder_replace_leaves_a_complete_folder() {
     write_folder_version(&dir, 0);
     let mut seed = 0x9e37_79b9_u64;
     let (mut changed, mut recovered) = (0, 0);
-    for round in 0..12 {
+    for round in 0..ROUNDS {
         let before = complete_folder(&dir);
         // A version is three 4 MiB files, a few ms to write: killed at any point of the loop.
         kill_midway(
             "child_replaces_the_folder_forever",
             FOLDER_ENV,
             &dir,
+            clock_from(round),
             &mut seed,
         );
         if recover_dir(&dir).unwrap() {
