@@ -152,8 +152,8 @@ fn clock_from(round: usize) -> &'static str {
 
 /// Runs `child`, an ignored test of this binary, with `env` naming `target`, and kills it
 /// (SIGKILL on Unix: no destructor, no cleanup runs) 5 to 60 ms, drawn from `seed`, after it
-/// prints the line `clock_from`. Returns its process id.
-fn kill_midway(child: &str, env: &str, target: &Path, clock_from: &str, seed: &mut u64) -> u32 {
+/// prints the line `start_line`. Returns its process id.
+fn kill_midway(child: &str, env: &str, target: &Path, start_line: &str, seed: &mut u64) -> u32 {
     let mut process = Command::new(std::env::current_exe().unwrap())
         .args(["--exact", child, "--ignored", "--nocapture"])
         .env(env, target)
@@ -165,9 +165,9 @@ fn kill_midway(child: &str, env: &str, target: &Path, clock_from: &str, seed: &m
     let mut lines = BufReader::new(process.stdout.take().unwrap()).lines();
     loop {
         match lines.next() {
-            Some(Ok(line)) if line == clock_from => break,
+            Some(Ok(line)) if line == start_line => break,
             Some(Ok(_)) => {}
-            _ => panic!("{child} ended before printing {clock_from:?}"),
+            _ => panic!("{child} ended before printing {start_line:?}"),
         }
     }
     *seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
