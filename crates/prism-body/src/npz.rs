@@ -10,8 +10,10 @@ use std::io::{BufReader, Read, Seek, Write};
 use std::path::{Path, PathBuf};
 
 use glam::Vec3;
-use npyz::npz::NpzArchive;
 use npyz::{DType, NpyFile, Order, TypeChar};
+use zip::ZipArchive;
+use zip::result::ZipError;
+use zip::write::SimpleFileOptions;
 
 use super::error::BodyError;
 use super::joints::{NUM_BETAS, NUM_EXPRESSION, NUM_JOINTS, NUM_POSE_FEATURES};
@@ -27,7 +29,7 @@ struct Array<T> {
 }
 
 struct Reader<R: Read + Seek> {
-    archive: NpzArchive<R>,
+    archive: ZipArchive<R>,
     path: PathBuf,
 }
 
@@ -38,17 +40,18 @@ impl<R: Read + Seek> Reader<R> {
         expected: &str,
     ) -> Result<NpyFile<impl Read + '_>, BodyError> {
         let path = self.path.clone();
-        match self.archive.by_name(key) {
-            Ok(Some(file)) => Ok(file),
-            Ok(None) => Err(BodyError::MissingKey {
-                path,
+        let io = |error| BodyError::Io {
+            path: path.clone(),
+            error,
+        };
+        match self.archive.by_name(&npy_name(key)) {
+            Ok(entry) => NpyFile::new(entry).map_err(io),
+            Err(ZipError::FileNotFound) => Err(BodyError::MissingKey {
+                path: path.clone(),
                 key: key.to_string(),
                 expected: expected.to_string(),
             }),
-            Err(source) => Err(BodyError::Io {
-                path,
-                error: source,
-            }),
+            Err(error) => Err(io(std::io::Error::other(error))),
         }
     }
 
@@ -194,7 +197,8 @@ impl BodyModel {
             error: source,
         };
         let file = File::open(path).map_err(io)?;
-        let archive = NpzArchive::new(BufReader::new(file)).map_err(io)?;
+        let archive = ZipArchive::new(BufReader::new(file))
+            .map_err(|error| io(std::io::Error::other(error)))?;
         let mut r = Reader {
             archive,
             path: path.to_path_buf(),
@@ -309,11 +313,11 @@ impl BodyModel {
     fn npz_bytes(&self) -> std::io::Result<Vec<u8>> {
         let v = self.num_vertices() as u64;
         let j = NUM_JOINTS as u64;
-        let options = npyz::zip::write::FileOptions::default()
-            .compression_method(npyz::zip::CompressionMethod::Deflated)
+        let options = SimpleFileOptions::default()
+            .compression_method(zip::CompressionMethod::Deflated)
             .compression_level(Some(1))
             .large_file(true);
-        let mut zip = npyz::zip::ZipWriter::new(std::io::Cursor::new(Vec::new()));
+        let mut zip = zip::ZipWriter::new(std::io::Cursor::new(Vec::new()));
         let f32s = |x: &[f32]| x.iter().flat_map(|a| a.to_le_bytes()).collect::<Vec<u8>>();
         let template: Vec<f32> = self.v_template.iter().flat_map(|p| p.to_array()).collect();
         let faces: Vec<u8> = self
@@ -349,7 +353,7 @@ impl BodyModel {
             ("kintree_table", "<i8", vec![2, j], kintree),
         ];
         for (key, descr, shape, bytes) in arrays {
-            zip.start_file(npyz::npz::file_name_from_array_name(key), options)
+            zip.start_file(npy_name(key), options)
                 .map_err(|e| std::io::Error::other(e.to_string()))?;
             zip.write_all(&npy_header(descr, &shape))?;
             zip.write_all(&bytes)?;
@@ -359,6 +363,11 @@ impl BodyModel {
             .map_err(|e| std::io::Error::other(e.to_string()))?;
         Ok(archive.into_inner())
     }
+}
+
+/// The name of an array's member in an `.npz` archive, as NumPy's `savez` writes it.
+fn npy_name(key: &str) -> String {
+    format!("{key}.npy")
 }
 
 /// The header of a version 1.0 `.npy` file for a C-order array: magic, version, header length

@@ -18,8 +18,8 @@ use burn::data::dataloader::{DataLoaderIterator, Progress};
 use burn::data::dataset::DatasetError;
 use burn::optim::{GradientsAccumulator, GradientsParams};
 use burn::tensor::Device;
-use burn::train::TrainStep;
-use burn::train::train::{MultiDeviceStepError, MultiDevicesTrainStep};
+use burn_train::TrainStep;
+use burn_train::train::{MultiDeviceStepError, MultiDevicesTrainStep};
 use prism_core::BackendKind;
 use prism_remote::{DeviceList, Fingerprint, config_digest};
 

@@ -6,8 +6,8 @@ use std::sync::Arc;
 
 use burn::module::Module;
 use burn::tensor::{ExecutionError, Tensor};
-use burn::train::metric::ItemLazy;
-use burn::train::{InferenceStep, TrainOutput, TrainStep};
+use burn_train::metric::ItemLazy;
+use burn_train::{InferenceStep, TrainOutput, TrainStep};
 use prism_data::PrismBatch;
 use prism_losses::LossTerms;
 use prism_model::Prism;
