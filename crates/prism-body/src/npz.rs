@@ -366,7 +366,7 @@ impl BodyModel {
 }
 
 /// The name of an array's member in an `.npz` archive, as NumPy's `savez` writes it.
-fn npy_name(key: &str) -> String {
+pub(crate) fn npy_name(key: &str) -> String {
     format!("{key}.npy")
 }
 

@@ -111,22 +111,25 @@ enum Raw {
 
 fn write_npz(path: &Path, arrays: &[(&str, Vec<u64>, Raw, bool)]) {
     use npyz::WriterBuilder;
-    let mut npz = npyz::npz::NpzWriter::create(path).unwrap();
-    let options = npyz::zip::write::FileOptions::default();
+    let mut zip = zip::ZipWriter::new(std::fs::File::create(path).unwrap());
     for (key, shape, data, fortran) in arrays {
         let order = if *fortran {
             npyz::Order::Fortran
         } else {
             npyz::Order::C
         };
+        zip.start_file(
+            crate::npz::npy_name(key),
+            zip::write::SimpleFileOptions::default(),
+        )
+        .unwrap();
         macro_rules! put {
             ($t:ty, $v:expr) => {{
-                let mut w = npz
-                    .array::<$t>(key, options)
-                    .unwrap()
+                let mut w = npyz::WriteOptions::<$t>::new()
                     .default_dtype()
                     .shape(shape)
                     .order(order)
+                    .writer(&mut zip)
                     .begin_nd()
                     .unwrap();
                 w.extend($v.iter().copied()).unwrap();
@@ -140,7 +143,7 @@ fn write_npz(path: &Path, arrays: &[(&str, Vec<u64>, Raw, bool)]) {
             Raw::I64(v) => put!(i64, v),
         }
     }
-    npz.zip_writer().finish().unwrap();
+    zip.finish().unwrap();
 }
 
 /// Writes `model` the way the official SMPL-X v1.1 files are stored: float64, uint32 faces and
