@@ -118,11 +118,8 @@ fn write_npz(path: &Path, arrays: &[(&str, Vec<u64>, Raw, bool)]) {
         } else {
             npyz::Order::C
         };
-        zip.start_file(
-            crate::npz::npy_name(key),
-            zip::write::SimpleFileOptions::default(),
-        )
-        .unwrap();
+        zip.start_file(npz::npy_name(key), zip::write::SimpleFileOptions::default())
+            .unwrap();
         macro_rules! put {
             ($t:ty, $v:expr) => {{
                 let mut w = npyz::WriteOptions::<$t>::new()
