@@ -281,9 +281,11 @@ pub fn assert_training_curves(path: &Path) {
 }
 
 /// The wgpu device when an adapter answers, else `None` (or a panic under CI's
-/// `PRISM_REQUIRE_WGPU=1`).
+/// `PRISM_REQUIRE_WGPU=1`). CubeCL's autotune runs at its minimal effort in the tests
+/// ([`minimal_autotune`]).
 #[cfg(feature = "wgpu")]
 pub fn wgpu_device() -> Option<burn::tensor::Device> {
+    minimal_autotune();
     let device = prism_core::BackendKind::Wgpu
         .device()
         .expect("built with the wgpu feature");
@@ -304,4 +306,20 @@ pub fn wgpu_device() -> Option<burn::tensor::Device> {
             None
         }
     }
+}
+
+/// Sets CubeCL's autotune to its minimal effort for this process, before its first kernel,
+/// unless `CUBECL_AUTOTUNE_LEVEL` asks for another. The GPU tests compare values, not speed,
+/// and on a fresh checkout CubeCL's autotune cache (`target/environment`) is empty: at its
+/// default effort it first times every candidate kernel of every matrix-product shape on the
+/// adapter (`tests/wgpu_backend.rs` on lavapipe: 977 s that way, 413 s at minimal effort;
+/// BENCHMARKS.md, "A clean CI run on this host, measured").
+#[cfg(feature = "wgpu")]
+fn minimal_autotune() {
+    use cubecl::config::autotune::AutotuneLevel;
+    use cubecl::config::{CubeClRuntimeConfig, RuntimeConfig};
+    let mut config = CubeClRuntimeConfig::from_current_dir();
+    config.autotune.level = AutotuneLevel::Minimal;
+    // `false` when CubeCL's settings were already read: an earlier call set them.
+    CubeClRuntimeConfig::try_set(config.override_from_env());
 }
