@@ -39,7 +39,7 @@ impl<R: Read + Seek> Reader<R> {
         key: &str,
         expected: &str,
     ) -> Result<NpyFile<impl Read + '_>, BodyError> {
-        let path = self.path.clone();
+        let path = &self.path;
         let io = |error| BodyError::Io {
             path: path.clone(),
             error,
@@ -51,7 +51,7 @@ impl<R: Read + Seek> Reader<R> {
                 key: key.to_string(),
                 expected: expected.to_string(),
             }),
-            Err(error) => Err(io(std::io::Error::other(error))),
+            Err(error) => Err(io(error.into())),
         }
     }
 
@@ -197,8 +197,7 @@ impl BodyModel {
             error: source,
         };
         let file = File::open(path).map_err(io)?;
-        let archive = ZipArchive::new(BufReader::new(file))
-            .map_err(|error| io(std::io::Error::other(error)))?;
+        let archive = ZipArchive::new(BufReader::new(file)).map_err(|error| io(error.into()))?;
         let mut r = Reader {
             archive,
             path: path.to_path_buf(),
@@ -353,14 +352,11 @@ impl BodyModel {
             ("kintree_table", "<i8", vec![2, j], kintree),
         ];
         for (key, descr, shape, bytes) in arrays {
-            zip.start_file(npy_name(key), options)
-                .map_err(|e| std::io::Error::other(e.to_string()))?;
+            zip.start_file(npy_name(key), options)?;
             zip.write_all(&npy_header(descr, &shape))?;
             zip.write_all(&bytes)?;
         }
-        let archive = zip
-            .finish()
-            .map_err(|e| std::io::Error::other(e.to_string()))?;
+        let archive = zip.finish()?;
         Ok(archive.into_inner())
     }
 }
