@@ -201,6 +201,12 @@ pub struct PrismConfig {
     /// place their points at initialisation (the protocol's orbit radius, 2 m).
     #[config(default = 2.0)]
     pub depth_prior: f64,
+    /// The point branch starts each source pixel's distance at the plane through the person
+    /// that a person of this height (metres), spanning the source's foreground rows, stands in
+    /// (`geometry/points/anchor.rs`), instead of at `depth_prior`: the distance judged from the
+    /// photo and its camera. 0 (the default) keeps `depth_prior`.
+    #[config(default = 0.0)]
+    pub anchor_height: f64,
     /// Initial value of the gates `g_smpl` and `g_pts` (`g_res` starts at 0). Not 0: behind a
     /// zero-initialised convolution a zero gate never receives a gradient (see
     /// `geometry/injection.rs`).
@@ -329,6 +335,12 @@ impl PrismConfig {
             if !(value.is_finite() && value > 0.0) {
                 return fail(field, format!("{value} is not a positive number"));
             }
+        }
+        if !(self.anchor_height.is_finite() && self.anchor_height >= 0.0) {
+            return fail(
+                "model.anchor_height",
+                format!("{} is not 0 or a positive number", self.anchor_height),
+            );
         }
         if !self.gate_init.is_finite() {
             return fail(
@@ -513,6 +525,7 @@ point_width = 32
 point_features = 8
 point_colours = false
 depth_prior = 2.0
+anchor_height = 0.0
 gate_init = 1.0
 gs_colour = "regressed"
 gs_depth = "head"

@@ -79,6 +79,7 @@ impl PrismConfig {
                 self.point_features,
                 self.depth_prior,
             )
+            .with_anchor_height(self.anchor_height)
             .with_init_std(self.init_std)
             .with_colours(self.point_colours)
             .init(device)

@@ -5,7 +5,9 @@
 //! Per source pixel the head ([`DptHead`]) gives `3 + F` raw values `(x_t, x_c, x_o, x_f)`:
 //!
 //! - distance along the pixel's unit ray `t = softplus(x_t + softplus^-1(depth_prior))` (the
-//!   subject is about `depth_prior` = 2 m away at initialisation) and the world point
+//!   subject is about `depth_prior` = 2 m away at initialisation; with `anchor_height`, the
+//!   distance to the person's plane judged from the silhouette's height instead, see
+//!   [`anchor`]) and the world point
 //!   `X = o + t d` (`o` the source camera centre, `d` the ray direction of the Plücker map): the
 //!   ground-truth point map lies on the pixel rays, so only the distance is free;
 //! - confidence `C = 1 + exp(x_c)` (`x_c` clamped to 15 against overflow), for `L_pts`;
@@ -19,6 +21,7 @@
 //! pixel's colour, so `F_pts` shows stage III the source warped into the target view at the
 //! branch's depths (`F + 5` channels).
 
+pub(crate) mod anchor;
 pub(crate) mod dpt;
 
 use burn::config::Config;
@@ -49,6 +52,10 @@ pub(crate) struct PointBranchConfig {
     pub features: usize,
     /// Distance (metres) of the points at initialisation.
     pub depth_prior: f64,
+    /// The person's height (metres) from which the starting distances are judged (see
+    /// [`anchor`]); 0 for `depth_prior` everywhere.
+    #[config(default = 0.0)]
+    pub anchor_height: f64,
     /// Standard deviation of the normal initialisation of the linear layers.
     #[config(default = 0.02)]
     pub init_std: f64,
@@ -73,6 +80,7 @@ impl PointBranchConfig {
             taps: self.taps.clone(),
             features: self.features,
             depth_prior: self.depth_prior as f32,
+            anchor_height: self.anchor_height as f32,
             colours: self.colours,
         }
     }
@@ -89,6 +97,8 @@ pub struct PointBranch {
     features: usize,
     #[module(skip)]
     depth_prior: f32,
+    #[module(skip)]
+    anchor_height: f32,
     #[module(skip)]
     colours: bool,
 }
@@ -150,12 +160,22 @@ impl PointBranch {
     ) -> PointOutput {
         let [b, _, hs, ws] = source_rays.dims();
         let raw = self.dpt.forward(taps, grid, hs, ws);
-        let distance = softplus(
-            raw.clone()
-                .narrow(1, 0, 1)
-                .add_scalar(inverse_softplus(self.depth_prior)),
-            1.0,
-        );
+        let start = raw.clone().narrow(1, 0, 1);
+        let start = if self.anchor_height > 0.0 {
+            let directions = source_rays.clone().narrow(1, 0, 3);
+            let anchor = anchor::silhouette_anchor(
+                source_image,
+                &directions,
+                views.background,
+                self.anchor_height,
+                self.depth_prior,
+            );
+            // softplus^-1 of the anchor, per pixel.
+            start + anchor.exp().sub_scalar(1.0).clamp_min(1e-12).log()
+        } else {
+            start.add_scalar(inverse_softplus(self.depth_prior))
+        };
+        let distance = softplus(start, 1.0);
         let confidence = raw
             .clone()
             .narrow(1, 1, 1)
