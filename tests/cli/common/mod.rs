@@ -320,6 +320,16 @@ fn minimal_autotune() {
     use cubecl::config::{CubeClRuntimeConfig, RuntimeConfig};
     let mut config = CubeClRuntimeConfig::from_current_dir();
     config.autotune.level = AutotuneLevel::Minimal;
-    // `false` when CubeCL's settings were already read: an earlier call set them.
+    // `false` when CubeCL's settings were already read: an earlier call set them, or something
+    // read them first, which the check below tells apart.
     CubeClRuntimeConfig::try_set(config.override_from_env());
+    if std::env::var_os("CUBECL_AUTOTUNE_LEVEL").is_none() {
+        assert!(
+            matches!(
+                CubeClRuntimeConfig::get().autotune.level,
+                AutotuneLevel::Minimal
+            ),
+            "CubeCL's settings were read before the tests could set its minimal autotune"
+        );
+    }
 }

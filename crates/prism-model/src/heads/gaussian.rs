@@ -179,14 +179,19 @@ pub enum GsDepth {
 /// `logit(k)` of the key `k = clamp(max_c |I_s - bg| / KEY_WIDTH, KEY_FLOOR, 1 - KEY_FLOOR)` of
 /// a source image `[B, 3, H, W]` on the background colour: `[B, 1, H, W]`.
 pub(crate) fn key_logits(source_image: &Tensor<4>, background: &[f32]) -> Tensor<4> {
-    let device = source_image.device();
-    let bg = Tensor::<4>::from_data(TensorData::new(background.to_vec(), [1, 3, 1, 1]), &device);
-    let key = (source_image.clone() - bg)
-        .abs()
-        .max_dim(1)
+    let key = background_distance(source_image, background)
         .div_scalar(KEY_WIDTH)
         .clamp(KEY_FLOOR, 1.0 - KEY_FLOOR);
     (key.clone() / key.neg().add_scalar(1.0)).log()
+}
+
+/// Each pixel's colour distance from the background, `max_c |I_s - bg|` in `[0, 1]`, of a
+/// source image `[B, 3, H, W]`: `[B, 1, H, W]` (every input is composited on the background,
+/// so this tells the person from the background).
+pub(crate) fn background_distance(source_image: &Tensor<4>, background: &[f32]) -> Tensor<4> {
+    let device = source_image.device();
+    let bg = Tensor::<4>::from_data(TensorData::new(background.to_vec(), [1, 3, 1, 1]), &device);
+    (source_image.clone() - bg).abs().max_dim(1)
 }
 
 /// The raw offset `x` with `sigmoid(x)` placing the log-scale at `scale` footprints within

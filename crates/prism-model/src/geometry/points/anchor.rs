@@ -20,7 +20,9 @@
 //! teacher's own distances are 8 to 9 cm off, almost all of it a bias (BENCHMARKS.md, issue
 //! 42, "The distance from the silhouette").
 
-use burn::tensor::{Tensor, TensorData};
+use burn::tensor::Tensor;
+
+use crate::heads::gaussian::background_distance;
 
 /// Colour distance from the background (largest channel difference, in `[0, 1]`) above which a
 /// source pixel counts as the person's.
@@ -37,11 +39,7 @@ pub(crate) fn silhouette_anchor(
     fallback: f32,
 ) -> Tensor<4> {
     let [b, _, h, w] = source_image.dims();
-    let device = source_image.device();
-    let bg = Tensor::<4>::from_data(TensorData::new(background.to_vec(), [1, 3, 1, 1]), &device);
-    let person = (source_image.clone() - bg)
-        .abs()
-        .max_dim(1)
+    let person = background_distance(source_image, &background)
         .greater_elem(FOREGROUND)
         .float();
     // Rows with the person in them, counted down the image: the first such row has count 1,
@@ -83,6 +81,7 @@ fn norm(x: Tensor<4>) -> Tensor<4> {
 mod tests {
     use super::*;
     use crate::test_util::{ndarray, values};
+    use burn::tensor::TensorData;
     use prism_core::rays::plucker_rays;
     use prism_core::{Camera, Intrinsics};
 
