@@ -21,7 +21,7 @@
 //! kernels in CubeCL (module `device`): forward and backward without the `T x T` scores, in
 //! f32, f16 or bf16, checked against the unfused attention on lavapipe
 //! (`tests/cli/device/flash_attention.rs`, and the tiny model through them in
-//! `tests/wgpu_backend.rs`); opt-in through [`GpuAttention`].
+//! `tests/cli/device/backend.rs`); opt-in through [`GpuAttention`].
 //!
 //! The functions below pick the kernel when the tensor is f32 on a CPU backend (flex, ndarray;
 //! tracked by autodiff or not), the flash kernels for attention on a GPU backend when chosen,
@@ -374,7 +374,7 @@ fn attention_in(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>, bf16: bool) -> Tensor<
 ///
 /// The default stays on Burn's ops until a training run of the model through the flash
 /// kernels has been compared with Burn's on a GPU (lavapipe runs the tiny model's forward pass
-/// and training step through them in `tests/wgpu_backend.rs`); `auto` keeps Burn's fused op
+/// and training step through them in `tests/cli/device/backend.rs`); `auto` keeps Burn's fused op
 /// for inference, which can use cooperative matrices.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum GpuAttention {

@@ -22,9 +22,8 @@ use std::sync::{Mutex, OnceLock, RwLock, RwLockReadGuard, RwLockWriteGuard};
 use image::RgbImage;
 
 /// The wgpu device of this process: the tests that run tensors on it share it (their checks
-/// compare two paths on the same inputs), and a test that reads the device's memory pool or
-/// the process-wide count of geometry reads holds it alone ([`device_alone`]), since another
-/// test's tensors would change them.
+/// compare two paths on the same inputs), and a test that reads the device's memory pool holds
+/// it alone ([`device_alone`]), since another test's tensors would change it.
 static DEVICE: RwLock<()> = RwLock::new(());
 
 /// Held by a test while it runs tensors on the wgpu device: see [`DEVICE`].
@@ -34,8 +33,7 @@ pub fn device_shared() -> RwLockReadGuard<'static, ()> {
         .unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
-/// Held by a test that reads the wgpu device's memory pool or the geometry reads: see
-/// [`DEVICE`].
+/// Held by a test that reads the wgpu device's memory pool: see [`DEVICE`].
 pub fn device_alone() -> RwLockWriteGuard<'static, ()> {
     DEVICE
         .write()
@@ -312,8 +310,8 @@ pub fn wgpu_device() -> Option<burn::tensor::Device> {
 /// unless `CUBECL_AUTOTUNE_LEVEL` asks for another. The GPU tests compare values, not speed,
 /// and on a fresh checkout CubeCL's autotune cache (`target/environment`) is empty: at its
 /// default effort it first times every candidate kernel of every matrix-product shape on the
-/// adapter (`tests/wgpu_backend.rs` on lavapipe: 977 s that way, 413 s at minimal effort;
-/// BENCHMARKS.md, "A clean CI run on this host, measured").
+/// adapter (the model's tests, `device::backend`, on lavapipe: 977 s that way, 413 s at minimal
+/// effort; BENCHMARKS.md, "A clean CI run on this host, measured").
 #[cfg(feature = "wgpu")]
 fn minimal_autotune() {
     use cubecl::config::autotune::AutotuneLevel;

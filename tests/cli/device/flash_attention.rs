@@ -2,7 +2,7 @@
 //! values, every input's gradient, finite differences of the kernels' own forward pass, half
 //! precision, and the memory a training step keeps, at two sequence lengths. The strided
 //! inputs the model makes (slices of one projection, axes swapped) go through them in
-//! `tests/wgpu_backend.rs`, which runs the tiny model's forward pass and training step on them.
+//! [`super::backend`], which runs the tiny model's forward pass and training step on them.
 //!
 //! Runs in the default build (the `wgpu` feature) on a machine with a Vulkan/Metal/DX12 adapter
 //! (Mesa's lavapipe is enough): `cargo test --release --test cli -- device::flash_attention`.

@@ -1,6 +1,7 @@
-//! The wgpu backend's kernels on the machine's adapter (Mesa's lavapipe in CI) against
-//! reference paths (the whole model against flex is `tests/wgpu_backend.rs`). Named to sort
-//! early: these tests are long on a software adapter, and the test harness starts tests in
-//! name order.
+//! The wgpu backend on the machine's adapter (Mesa's lavapipe in CI): the whole model against
+//! flex ([`backend`]), and prism's flash-attention kernels against the reference path. Named to
+//! sort early: these tests are long on a software adapter, and the test harness starts tests in
+//! name order (the memory test, which holds the device alone, last).
 
+mod backend;
 mod flash_attention;
