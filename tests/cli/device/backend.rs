@@ -141,7 +141,7 @@ fn assert_outputs_close(what: &str, got: &[Vec<f32>; 3], want: &[Vec<f32>; 3], t
 /// kernels (`GpuAttention::Flash`) against the default attention (Burn's fused op). The two
 /// wgpu passes must differ in some bit, or the flash kernels did not run.
 #[test]
-#[ignore = "minutes on a software adapter: `cargo test --release --test cli -- --ignored device::backend`"]
+#[ignore = "minutes on a software adapter: run with `--ignored device::backend`"]
 fn tiny_forward_on_wgpu_matches_flex_through_either_attention() {
     let _shared = common::device_shared();
     let Some(wgpu) = common::wgpu_device() else {
@@ -217,15 +217,16 @@ fn assert_same_updates(
 /// dataset, from the same weights: the same loss and the same update of every weight (within
 /// 2e-2: a planted factor of 2 in a gradient gives 1); the step's geometry operations read
 /// from the host on flex (so the counter is live), never on wgpu. On wgpu, the step through
-/// prism's flash kernels (their backward pass included) against the default one (matmul-softmax-matmul): the same loss and updates (within 1e-2),
-/// yet different in some bit, or the flash kernels did not run.
+/// prism's flash kernels (their backward pass included) against the default one
+/// (matmul-softmax-matmul): the same loss and updates (within 1e-2), yet different in some bit,
+/// or the flash kernels did not run.
 ///
 /// At initialisation the attention's projections move by about 1e-6, sums of far larger
 /// terms that nearly cancel, so f32 rounding reaches 8e-4 of such an update on one lavapipe
 /// host and 1.7e-3 on another (their sums run in other orders); a wrong gradient is off by a
 /// good part of 1 (a 5% error planted in the query gradient gives 2.2e-2).
 #[test]
-#[ignore = "minutes on a software adapter: `cargo test --release --test cli -- --ignored device::backend`"]
+#[ignore = "minutes on a software adapter: run with `--ignored device::backend`"]
 fn one_training_step_on_wgpu_matches_flex_through_either_attention_without_geometry_reads() {
     let _shared = common::device_shared();
     let Some(wgpu) = common::wgpu_device() else {
