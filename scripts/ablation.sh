@@ -16,7 +16,7 @@ PRISM=target/release/prism
 mkdir -p "$OUT"
 
 # name | sed edits of configs/small.toml (empty: the shipped recipe)
-PAPER='s/^gs_colour = .*/gs_colour = "regressed"/; s/^gs_depth = .*/gs_depth = "head"/; s/^gs_scale = .*/gs_scale = 1.0/; s/^gs_keying = .*/gs_keying = false/; s/^nvs_output = .*/nvs_output = "direct"/; s/^head_upsample = .*/head_upsample = 0/; s/^gs_opacity = .*/gs_opacity = 0.0/; s/^smplx = .*/smplx = 1.0/'
+PAPER='s/^gs_colour = .*/gs_colour = "regressed"/; s/^gs_depth = .*/gs_depth = "head"/; s/^gs_scale = .*/gs_scale = 1.0/; s/^gs_keying = .*/gs_keying = false/; s/^gs_rim_depth = .*/gs_rim_depth = 0.0/; s/^nvs_output = .*/nvs_output = "direct"/; s/^head_upsample = .*/head_upsample = 0/; s/^gs_opacity = .*/gs_opacity = 0.0/; s/^smplx = .*/smplx = 1.0/'
 VARIANTS=(
   "paper: plain NVS head, 3DGS head as in the paper|$PAPER"
   "paper + residual NVS over the paper's I_gs|$PAPER; s/^nvs_output = .*/nvs_output = \"residual\"/; s/^smplx = .*/smplx = 0.05/"

@@ -230,6 +230,11 @@ pub struct PrismConfig {
     /// (background pixels transparent, the person opaque; see `heads/gaussian.rs`).
     #[config(default = false)]
     pub gs_keying: bool,
+    /// The 3DGS head's rim Gaussians: the source silhouette's edge pixels start as Gaussians
+    /// reaching this far (metres) back along their rays, to cover the sides a turned view shows
+    /// (`heads/rim.rs`). 0 (the default) for none.
+    #[config(default = 0.0)]
+    pub gs_rim_depth: f64,
     /// The NVS decoder's output: `"direct"` (the paper: `sigmoid` of the regressed colours) or
     /// `"residual"` (a correction of the 3DGS head's render `I_gs`; needs `gs_head`).
     #[config(default = "NvsOutput::Direct")]
@@ -342,6 +347,12 @@ impl PrismConfig {
                 format!("{} is not 0 or a positive number", self.anchor_height),
             );
         }
+        if !(self.gs_rim_depth.is_finite() && self.gs_rim_depth >= 0.0) {
+            return fail(
+                "model.gs_rim_depth",
+                format!("{} is not 0 or a positive number", self.gs_rim_depth),
+            );
+        }
         if !self.gate_init.is_finite() {
             return fail(
                 "model.gate_init",
@@ -390,13 +401,14 @@ impl PrismConfig {
     /// This config with the paper's output parameterisation: the 3DGS head regresses colours
     /// and depths at a one-pixel scale without keying, and the NVS decoder regresses colours,
     /// both a value per pixel (`gs_colour = "regressed"`, `gs_depth = "head"`, `gs_scale = 1`,
-    /// `gs_keying = false`, `nvs_output = "direct"`, `head_upsample = 0`).
+    /// `gs_keying = false`, `gs_rim_depth = 0`, `nvs_output = "direct"`, `head_upsample = 0`).
     pub fn paper_outputs(self) -> Self {
         Self {
             gs_colour: GsColour::Regressed,
             gs_depth: GsDepth::Head,
             gs_scale: 1.0,
             gs_keying: false,
+            gs_rim_depth: 0.0,
             nvs_output: NvsOutput::Direct,
             head_upsample: 0,
             ..self
@@ -531,6 +543,7 @@ gs_colour = "regressed"
 gs_depth = "head"
 gs_scale = 1.0
 gs_keying = false
+gs_rim_depth = 0.0
 nvs_output = "direct"
 nvs_sees_render = false
 head_upsample = 0

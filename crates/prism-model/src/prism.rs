@@ -117,6 +117,7 @@ impl PrismConfig {
                     .with_depth(self.gs_depth)
                     .with_scale(self.gs_scale)
                     .with_keying(self.gs_keying)
+                    .with_rim_depth(self.gs_rim_depth)
                     .with_upsample(self.head_upsample)
                     .init(device)
             }),

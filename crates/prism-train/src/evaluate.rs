@@ -405,7 +405,7 @@ pub fn evaluate(
             if let Some(g) = &out.gaussians {
                 score(&mut gs, g.image.clone().clamp(0.0, 1.0));
                 if options.oracle {
-                    let truth = OracleBatch::new(&samples, &g.gaussians);
+                    let truth = OracleBatch::new(&samples, &g.gaussians).with_surface(&g.surface);
                     depth_errors.extend(truth.depth_errors());
                     let [_, _, h, w] = gt.dims();
                     for (tallies, &swap) in oracle.iter_mut().zip(&Swap::ALL) {

@@ -150,6 +150,8 @@ impl Swap {
 pub struct OracleBatch {
     dims: [usize; 2],
     means: Vec<f32>,
+    /// Each Gaussian's surface point (its centre unless set by [`OracleBatch::with_surface`]).
+    surfaces: Vec<f32>,
     log_scales: Vec<f32>,
     rotations: Vec<f32>,
     opacity_logits: Vec<f32>,
@@ -204,9 +206,11 @@ impl OracleBatch {
             let centre = source.camera.center();
             sources.push((centre.to_array(), source.camera.intrinsics.fx));
         }
+        let means = host(gaussians.means.clone());
         Self {
             dims: [b, n],
-            means: host(gaussians.means.clone()),
+            surfaces: means.clone(),
+            means,
             log_scales: host(gaussians.log_scales.clone()),
             rotations: host(gaussians.rotations.clone()),
             opacity_logits: host(gaussians.opacity_logits.clone()),
@@ -218,8 +222,22 @@ impl OracleBatch {
         }
     }
 
+    /// The Gaussians' surface points `[B, N, 3]` where they differ from their centres (the
+    /// rim Gaussians of `gs_rim_depth` sit behind theirs by design, see
+    /// `prism_model::GaussianOutput::surface`). Depth errors are then measured on the surface
+    /// points, and the depth swaps move them, each centre keeping its offset from its own.
+    ///
+    /// # Panics
+    /// If `surface` is not one point per Gaussian.
+    pub fn with_surface(mut self, surface: &Tensor<3>) -> Self {
+        let [b, n] = self.dims;
+        assert_eq!(surface.dims(), [b, n, 3], "one surface point per Gaussian");
+        self.surfaces = host(surface.clone());
+        self
+    }
+
     /// How far the model's Gaussians lie from the truth: for each source foreground pixel, its
-    /// centre's distance from the camera minus that of the dataset's point of the pixel
+    /// surface point's distance from the camera minus that of the dataset's point of the pixel
     /// (metres; positive: the Gaussian is too far). Both are on the pixel's ray, so this is the
     /// signed depth error.
     pub fn depth_errors(&self) -> Vec<f32> {
@@ -228,7 +246,7 @@ impl OracleBatch {
             .filter(|&i| self.foreground[i])
             .map(|i| {
                 let (centre, _) = self.sources[i / n];
-                distance_from(centre, &self.means[3 * i..3 * i + 3])
+                distance_from(centre, &self.surfaces[3 * i..3 * i + 3])
                     - distance_from(centre, &self.true_means[3 * i..3 * i + 3])
             })
             .collect()
@@ -260,14 +278,16 @@ impl OracleBatch {
                 let fg = self.foreground[i];
                 let kept = swap.depth_error_kept();
                 if kept < 1.0 && fg {
-                    // Both on the pixel's ray, so the mix is too.
+                    // All on the pixel's ray, so the mix is too; the centre keeps its offset
+                    // from its surface point.
                     let range = 3 * i..3 * i + 3;
-                    for ((mean, &model), &truth) in means[range.clone()]
+                    for (((mean, &centre), &model), &truth) in means[range.clone()]
                         .iter_mut()
                         .zip(&self.means[range.clone()])
+                        .zip(&self.surfaces[range.clone()])
                         .zip(&self.true_means[range])
                     {
-                        *mean = truth + kept * (model - truth);
+                        *mean = truth + kept * (model - truth) + (centre - model);
                     }
                 }
                 if bias != 0.0 && fg {
@@ -447,6 +467,37 @@ mod tests {
         let mean = want.iter().sum::<f32>() / want.len() as f32;
         for (e, w) in errors.iter().zip(&want) {
             assert!((e - (w - mean)).abs() < 1e-4, "{e} vs {w} - {mean}");
+        }
+    }
+
+    #[test]
+    fn with_surface_points_the_depth_is_theirs_and_the_centres_keep_their_offsets() {
+        let device = BackendKind::Ndarray.device().unwrap();
+        let samples = vec![sample()];
+        let model = wrong(&samples, &device);
+        // Centres 10 cm behind surface points at depth 3 (rim Gaussians everywhere).
+        let surface = model.means.clone();
+        let centre = samples[0].source.camera.center();
+        let origin = Tensor::<3>::from_data(
+            TensorData::new(centre.to_array().to_vec(), [1, 1, 3]),
+            &device,
+        );
+        let rays = surface.clone() - origin.clone();
+        let length = rays.clone().powi_scalar(2).sum_dim(2).sqrt();
+        let means = surface.clone() + rays.clone() / length.clone() * 0.1;
+        let rimmed = Gaussians {
+            means,
+            ..model.clone()
+        };
+        let plain = OracleBatch::new(&samples, &model).depth_errors();
+        let batch = OracleBatch::new(&samples, &rimmed).with_surface(&surface);
+        assert_eq!(batch.depth_errors(), plain);
+        // The true-depth swap puts each surface point on the truth, its centre 10 cm behind.
+        let swapped = batch.swapped(Swap::Depth, 0.3, &device);
+        let errors = OracleBatch::new(&samples, &swapped).depth_errors();
+        assert_eq!(errors.len(), 16 * 16);
+        for e in errors {
+            assert!((e - 0.1).abs() < 1e-4, "{e}");
         }
     }
 

@@ -93,7 +93,7 @@ impl TeacherLoss {
                     mask: mask.clone(),
                 })
                 .with_gs_centres(CentreInputs {
-                    centres: gaussians.gaussians.means.clone(),
+                    centres: gaussians.surface.clone(),
                     points: pixel_rows(batch.source_points.clone()),
                     mask,
                 });

@@ -30,7 +30,11 @@
 //!   (every image the model sees is composited on it, photos by `prism infer` too),
 //!   `o = sigmoid(logit(k) + x_o)` with `k = clamp(max_c |I_s - bg| / KEY_WIDTH, 0.01, 0.99)`:
 //!   background pixels start transparent, the person opaque, and the head learns the
-//!   exceptions (a white shirt on a white background) from `L_opacity` and the image losses.
+//!   exceptions (a white shirt on a white background) from `L_opacity` and the image losses;
+//! - `gs_rim_depth = L`: the Gaussians of the source silhouette's rim start stretched back along
+//!   their rays, spanning `L` metres behind their surface point, to cover the sides a turned
+//!   view shows (see [`crate::heads::rim`]); every Gaussian's rotation then starts from the one
+//!   that turns its third axis onto its ray instead of the identity.
 //!
 //! With any of them the projection starts at zero, so that at initialisation the Gaussians are
 //! the source pixels at the point branch's depth (or `depth_prior`). `gs_scale` sets their
@@ -56,6 +60,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::ModelError;
 use crate::geometry::points::{inverse_softplus, pixel_rows};
+use crate::heads::rim::{ray_rotations, scale_logits_for, silhouette_rim};
 use crate::heads::{head_map, values_per_channel};
 use crate::views::{Views, focals, points_along_rays};
 
@@ -94,6 +99,10 @@ pub(crate) struct GaussianHeadConfig {
     /// Start the opacities from the source's key on the background colour.
     #[config(default = false)]
     pub keying: bool,
+    /// How far (metres) the source silhouette's rim Gaussians reach back along their rays at
+    /// initialisation (`heads/rim.rs`); 0 for none.
+    #[config(default = 0.0)]
+    pub rim_depth: f64,
     /// The raw values' resolution: 0 for a free value per pixel (the paper's unpatchify),
     /// `f` for `f x f` values per token upsampled bilinearly ([`head_map`]).
     #[config(default = 0)]
@@ -135,13 +144,17 @@ impl GaussianHeadConfig {
             depth: self.depth,
             scale_logit: scale_logit(self.scale as f32),
             keying: self.keying,
+            rim_depth: self.rim_depth as f32,
         }
     }
 
     /// Whether the head starts from the source pixels (`colour` or `depth` taken from them):
     /// then its projection starts at zero.
     pub(crate) fn is_geometric(&self) -> bool {
-        self.colour != GsColour::Regressed || self.depth == GsDepth::Points || self.keying
+        self.colour != GsColour::Regressed
+            || self.depth == GsDepth::Points
+            || self.keying
+            || self.rim_depth > 0.0
     }
 }
 
@@ -221,6 +234,8 @@ pub struct GaussianHead {
     scale_logit: f32,
     #[module(skip)]
     keying: bool,
+    #[module(skip)]
+    rim_depth: f32,
 }
 
 /// What the 3DGS head predicts for a batch of `B` pairs.
@@ -232,6 +247,10 @@ pub struct GaussianOutput {
     pub image: Tensor<4>,
     /// The rendered coverage `[B, 1, H, W]`.
     pub alpha: Tensor<4>,
+    /// Each Gaussian's point on its pixel's surface, `[B, N, 3]`: its centre, except for the
+    /// rim Gaussians of `gs_rim_depth`, which sit behind theirs by design. What losses on the
+    /// depth (`L_centres`, `L_spread`) and the depth's diagnostics measure.
+    pub surface: Tensor<3>,
 }
 
 impl GaussianOutput {
@@ -314,18 +333,39 @@ impl GaussianHead {
                 (base + x_t).clamp_min(1e-3)
             }
         };
-        let means = points_along_rays(source_rays, distance.clone(), &sources);
-        let footprint = (distance / focals(&sources, &device)).log();
         let (lo, hi) = (MIN_SCALE_PIXELS.ln(), MAX_SCALE_PIXELS.ln());
-        let log_scales = sigmoid(raw.clone().narrow(1, 1, 3).add_scalar(self.scale_logit))
-            .mul_scalar(hi - lo)
-            .add_scalar(lo)
-            + footprint;
-        let identity = Tensor::<4>::from_data(
-            TensorData::new(vec![1.0f32, 0.0, 0.0, 0.0], [1, 4, 1, 1]),
-            &device,
-        );
-        let q = raw.clone().narrow(1, 4, 4) + identity;
+        let mut scale_logits = raw.clone().narrow(1, 1, 3).add_scalar(self.scale_logit);
+        let surface = pixel_rows(points_along_rays(source_rays, distance.clone(), &sources));
+        let (distance, rotation_base) = if self.rim_depth > 0.0 {
+            // Rim Gaussians span their surface point and `rim_depth` behind it along the ray.
+            let rim = silhouette_rim(source_image, &views.background);
+            let distance = distance + rim.clone().mul_scalar(self.rim_depth / 2.0);
+            let footprint = (distance.clone().detach() / focals(&sources, &device)).log();
+            let along = scale_logits_for(self.rim_depth / 3.0, footprint, lo, hi);
+            let [b, _, h, w] = rim.dims();
+            let offset = Tensor::cat(
+                vec![
+                    Tensor::zeros([b, 2, h, w], &device),
+                    rim * along.sub_scalar(self.scale_logit),
+                ],
+                1,
+            );
+            scale_logits = scale_logits + offset;
+            let directions = source_rays.clone().narrow(1, 0, 3);
+            (distance, ray_rotations(&directions))
+        } else {
+            let identity = Tensor::<4>::from_data(
+                TensorData::new(vec![1.0f32, 0.0, 0.0, 0.0], [1, 4, 1, 1]),
+                &device,
+            );
+            (distance, identity)
+        };
+        // Sizes in footprints at the Gaussian's own distance: from the source camera a rim
+        // Gaussian covers its pixel as the others do.
+        let footprint = (distance.clone() / focals(&sources, &device)).log();
+        let means = points_along_rays(source_rays, distance, &sources);
+        let log_scales = sigmoid(scale_logits).mul_scalar(hi - lo).add_scalar(lo) + footprint;
+        let q = raw.clone().narrow(1, 4, 4) + rotation_base;
         let rotations = q.clone() / (q.clone() * q).sum_dim(1).add_scalar(1e-12).sqrt();
         let mut opacity_logits = raw.clone().narrow(1, 8, 1);
         if self.keying {
@@ -375,6 +415,7 @@ impl GaussianHead {
             gaussians,
             image,
             alpha,
+            surface,
         }
     }
 }
@@ -597,6 +638,114 @@ mod tests {
             values(&head.linear.weight.val().grad(&grads).unwrap())
                 .iter()
                 .any(|&g| g != 0.0)
+        );
+    }
+
+    #[test]
+    fn rim_gaussians_reach_back_along_their_rays_and_cover_the_turned_views_sides() {
+        let device = ndarray();
+        device.seed(9);
+        let (h, w) = (24, 24);
+        let mut views = views(1, h, w);
+        views.background = [1.0, 1.0, 1.0];
+        // A flat grey person 2 m away, rows 4..20 and columns 8..16, on the white background.
+        let mut data = vec![1.0f32; 3 * h * w];
+        for y in 4..20 {
+            for x in 8..16 {
+                for c in 0..3 {
+                    data[c * h * w + y * w + x] = 0.4;
+                }
+            }
+        }
+        let image = Tensor::<4>::from_data(TensorData::new(data, [1, 3, h, w]), &device);
+        let rays = plucker_rays(&views.source, &device);
+        let tokens = Tensor::<3>::random([1, 9, 16], Distribution::Normal(0.0, 1.0), &device);
+        let distance = Tensor::<4>::full([1, 1, h, w], 2.0, &device);
+        let run = |rim_depth: f64, views: &Views| {
+            let head = GaussianHeadConfig::new(16, 8, 2.0)
+                .with_colour(GsColour::Source)
+                .with_depth(GsDepth::Points)
+                .with_scale(0.5)
+                .with_keying(true)
+                .with_rim_depth(rim_depth)
+                .init(&device);
+            let source = SourcePixels {
+                image: &image,
+                rays: &rays,
+                distance: Some(distance.clone()),
+            };
+            head.forward(tokens.clone(), source, views, h, w)
+        };
+        let out = run(0.3, &views);
+        let camera = views.source[0];
+        let f = camera.intrinsics.fx;
+        let means = values(&out.gaussians.means);
+        let surface = values(&out.surface);
+        let scales = values(&out.gaussians.log_scales);
+        let rotations = values(&out.gaussians.rotations);
+        let ray_dirs = values(&rays.clone().narrow(1, 0, 3));
+        for i in 0..h * w {
+            let (x, y) = (i % w, i / w);
+            let person = (4..20).contains(&y) && (8..16).contains(&x);
+            let rim = person && (y == 4 || y == 19 || x == 8 || x == 15);
+            let p = glam::Vec3::from_slice(&means[3 * i..3 * i + 3]);
+            let want = if rim { 2.15 } else { 2.0 };
+            assert!(
+                ((p - camera.center()).length() - want).abs() < 1e-4,
+                "({x}, {y})"
+            );
+            // The surface point stays on the surface, on the centre's ray.
+            let s = glam::Vec3::from_slice(&surface[3 * i..3 * i + 3]);
+            assert!(((s - camera.center()).length() - 2.0).abs() < 1e-4);
+            assert!(
+                (s - camera.center())
+                    .normalize()
+                    .dot((p - camera.center()).normalize())
+                    > 0.9999
+            );
+            let across = (0.5 * want / f).ln();
+            let along = if rim { 0.1f32.ln() } else { across };
+            for (axis, want) in [across, across, along].into_iter().enumerate() {
+                let got = scales[3 * i + axis];
+                assert!(
+                    (got - want).abs() < 1e-3,
+                    "({x}, {y}) axis {axis}: {got} vs {want}"
+                );
+            }
+            // The third axis lies on the ray.
+            let [qw, qx, qy, qz] = [0, 1, 2, 3].map(|c| rotations[4 * i + c]);
+            let axis = glam::Vec3::new(
+                2.0 * (qx * qz + qw * qy),
+                2.0 * (qy * qz - qw * qx),
+                1.0 - 2.0 * (qx * qx + qy * qy),
+            );
+            let ray = glam::Vec3::new(ray_dirs[i], ray_dirs[h * w + i], ray_dirs[2 * h * w + i]);
+            assert!((axis.dot(ray).abs() - 1.0).abs() < 1e-4, "({x}, {y})");
+        }
+        // Turned 25 degrees, the rim (reaching 30 cm, 1.5 px here) covers what the plain
+        // Gaussians leave uncovered beside the person; from the source camera it covers what
+        // they do.
+        let plain = values(&run(0.0, &views).alpha);
+        let rimmed = values(&out.alpha);
+        let beside = |alpha: &[f32]| {
+            (alpha.iter().zip(&plain))
+                .filter(|&(_, &p)| p < 0.1)
+                .map(|(a, _)| a)
+                .sum::<f32>()
+        };
+        assert!(
+            beside(&rimmed) > beside(&plain) + 4.0,
+            "{} against {}",
+            beside(&rimmed),
+            beside(&plain)
+        );
+        let coverage = |out: &GaussianOutput| values(&out.alpha).iter().sum::<f32>();
+        let mut own = views.clone();
+        own.target = own.source.clone();
+        let (rimmed, plain) = (coverage(&run(0.3, &own)), coverage(&run(0.0, &own)));
+        assert!(
+            (rimmed - plain).abs() < 1e-3 * plain,
+            "{rimmed} against {plain}"
         );
     }
 

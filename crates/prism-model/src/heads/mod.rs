@@ -1,9 +1,10 @@
 //! The heads on `T_out` (paper Sec. 3.2, Stage III): the NVS decoder ([`nvs`]: target tokens
 //! to `I_t`) and the 3DGS head ([`gaussian`]: source tokens to Gaussians and their render
-//! `I_gs`).
+//! `I_gs`, with its silhouette's rim Gaussians in [`rim`]).
 
 pub(crate) mod gaussian;
 pub(crate) mod nvs;
+pub(crate) mod rim;
 
 use burn::tensor::Tensor;
 
