@@ -335,9 +335,9 @@ impl GaussianHead {
         };
         let (lo, hi) = (MIN_SCALE_PIXELS.ln(), MAX_SCALE_PIXELS.ln());
         let mut scale_logits = raw.clone().narrow(1, 1, 3).add_scalar(self.scale_logit);
-        let surface = pixel_rows(points_along_rays(source_rays, distance.clone(), &sources));
-        let (distance, rotation_base) = if self.rim_depth > 0.0 {
+        let (distance, rotation_base, surface) = if self.rim_depth > 0.0 {
             // Rim Gaussians span their surface point and `rim_depth` behind it along the ray.
+            let surface = points_along_rays(source_rays, distance.clone(), &sources);
             let rim = silhouette_rim(source_image, &views.background);
             let distance = distance + rim.clone().mul_scalar(self.rim_depth / 2.0);
             let footprint = (distance.clone().detach() / focals(&sources, &device)).log();
@@ -352,18 +352,24 @@ impl GaussianHead {
             );
             scale_logits = scale_logits + offset;
             let directions = source_rays.clone().narrow(1, 0, 3);
-            (distance, ray_rotations(&directions))
+            (
+                distance,
+                ray_rotations(&directions),
+                Some(pixel_rows(surface)),
+            )
         } else {
             let identity = Tensor::<4>::from_data(
                 TensorData::new(vec![1.0f32, 0.0, 0.0, 0.0], [1, 4, 1, 1]),
                 &device,
             );
-            (distance, identity)
+            (distance, identity, None)
         };
         // Sizes in footprints at the Gaussian's own distance: from the source camera a rim
         // Gaussian covers its pixel as the others do.
         let footprint = (distance.clone() / focals(&sources, &device)).log();
-        let means = points_along_rays(source_rays, distance, &sources);
+        let means = pixel_rows(points_along_rays(source_rays, distance, &sources));
+        // Without rim Gaussians the surface points are the centres, the same tensor.
+        let surface = surface.unwrap_or_else(|| means.clone());
         let log_scales = sigmoid(scale_logits).mul_scalar(hi - lo).add_scalar(lo) + footprint;
         let q = raw.clone().narrow(1, 4, 4) + rotation_base;
         let rotations = q.clone() / (q.clone() * q).sum_dim(1).add_scalar(1e-12).sqrt();
@@ -380,7 +386,7 @@ impl GaussianHead {
             GsColour::Flow => source_image.clone(),
         };
         let gaussians = Gaussians {
-            means: pixel_rows(means),
+            means,
             log_scales: pixel_rows(log_scales),
             rotations: pixel_rows(rotations),
             opacity_logits: pixel_rows(opacity_logits),
