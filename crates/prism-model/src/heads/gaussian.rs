@@ -198,6 +198,18 @@ pub(crate) fn key_logits(source_image: &Tensor<4>, background: &[f32]) -> Tensor
     (key.clone() / key.neg().add_scalar(1.0)).log()
 }
 
+/// Colour distance from the background (largest channel difference, in `[0, 1]`) above which a
+/// source pixel counts as the person's (the silhouette anchor's and the rim's).
+const PERSON_DISTANCE: f32 = 0.05;
+
+/// The person's pixels of a source image `[B, 3, H, W]`, 1 where its colour is away from the
+/// background's (more than [`PERSON_DISTANCE`]) and 0 elsewhere: `[B, 1, H, W]`.
+pub(crate) fn person_mask(source_image: &Tensor<4>, background: &[f32]) -> Tensor<4> {
+    background_distance(source_image, background)
+        .greater_elem(PERSON_DISTANCE)
+        .float()
+}
+
 /// Each pixel's colour distance from the background, `max_c |I_s - bg|` in `[0, 1]`, of a
 /// source image `[B, 3, H, W]`: `[B, 1, H, W]` (every input is composited on the background,
 /// so this tells the person from the background).

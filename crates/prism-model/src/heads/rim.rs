@@ -22,20 +22,14 @@
 
 use burn::tensor::Tensor;
 
-use crate::heads::gaussian::background_distance;
-
-/// Colour distance from the background (largest channel difference, in `[0, 1]`) above which a
-/// source pixel counts as the person's (as the silhouette anchor's).
-const FOREGROUND: f32 = 0.05;
+use crate::heads::gaussian::person_mask;
 
 /// The source silhouette's rim, `[B, 1, H, W]`: 1 on the person's pixels (away from the
 /// background colour) that have a background pixel among their four neighbours, 0 elsewhere.
 /// The image's border does not count as background: a person cut off by the frame has no rim
 /// there.
 pub(crate) fn silhouette_rim(source_image: &Tensor<4>, background: &[f32]) -> Tensor<4> {
-    let person = background_distance(source_image, background)
-        .greater_elem(FOREGROUND)
-        .float();
+    let person = person_mask(source_image, background);
     let inner = [(2, 1), (2, -1), (3, 1), (3, -1)]
         .into_iter()
         .fold(person.clone(), |inner, (dim, step)| {

@@ -22,11 +22,7 @@
 
 use burn::tensor::Tensor;
 
-use crate::heads::gaussian::background_distance;
-
-/// Colour distance from the background (largest channel difference, in `[0, 1]`) above which a
-/// source pixel counts as the person's.
-const FOREGROUND: f32 = 0.05;
+use crate::heads::gaussian::person_mask;
 
 /// Per source pixel, the distance along its ray to the person's plane, `[B, 1, H, W]` (see the
 /// module docs): from the source image `[B, 3, H, W]`, its unit ray directions `[B, 3, H, W]`,
@@ -39,9 +35,7 @@ pub(crate) fn silhouette_anchor(
     fallback: f32,
 ) -> Tensor<4> {
     let [b, _, h, w] = source_image.dims();
-    let person = background_distance(source_image, &background)
-        .greater_elem(FOREGROUND)
-        .float();
+    let person = person_mask(source_image, &background);
     // Rows with the person in them, counted down the image: the first such row has count 1,
     // the last the total.
     let rows = person.clone().max_dim(3);
