@@ -78,7 +78,7 @@ impl ServeArgs {
             public_relays: self.public_relays,
         };
         let (backend, count) = (self.backend, self.devices);
-        serve(options, |entry| {
+        serve(options, &|entry| {
             // The one line to paste on the trainer's side; stdout, flushed, for scripts.
             println!("{entry}");
             let devices = if count == 1 {

@@ -330,8 +330,11 @@ fn distill_student_trains_on_served_devices_like_on_one_local_device() {
 
 #[test]
 fn a_killed_server_stops_the_trainer_and_the_run_resumes() {
+    // Enough steps that the kill lands mid-run (it comes at the second checkpoint), and few:
+    // the run trains four times over.
+    const STEPS: usize = 20;
     let dir = scratch("killed");
-    let (config, token) = setup(&dir, &tiny_config(40));
+    let (config, token) = setup(&dir, &tiny_config(STEPS));
     let servers = [
         Server::start("websocket", &token, &[]),
         Server::start("websocket", &token, &[]),
@@ -373,7 +376,7 @@ fn a_killed_server_stops_the_trainer_and_the_run_resumes() {
     assert!(!err.contains("panicked"), "{err}");
     let (step, last) = list_checkpoints(&run).unwrap().last().unwrap().clone();
     assert_eq!(Checkpoint::read(&last).unwrap().state.step, step);
-    assert!(step < 40, "killed mid-run, at checkpoint {step}");
+    assert!(step < STEPS, "killed mid-run, at checkpoint {step}");
 
     // With only the first server, the batch is re-split (and said so); the run completes.
     let fewer = dir.join("fewer");
@@ -395,7 +398,7 @@ fn a_killed_server_stops_the_trainer_and_the_run_resumes() {
         "{}",
         stderr(&out)
     );
-    assert_eq!(Checkpoint::read(&fewer).unwrap().state.step, 40);
+    assert_eq!(Checkpoint::read(&fewer).unwrap().state.step, STEPS);
 
     // With the server back (on a new port: the first server keeps its closed link to the old
     // one, see the README), the run ends as an uninterrupted one, bit for bit.

@@ -132,13 +132,17 @@ pub enum ServeError {
 
 /// Serves `options.devices` until SIGINT or SIGTERM (Ctrl+C elsewhere). `announce` receives,
 /// once the signal handlers are in place, the `--devices` list a trainer uses to reach the
-/// served devices (one entry per device, `#I` naming device `I` when there are several) (a trainer dialling before the server has bound is answered once it has: Burn's
-/// client retries).
+/// served devices (one entry per device, `#I` naming device `I` when there are several) (a
+/// trainer dialling before the server has bound is answered once it has: Burn's client retries).
+///
+/// `announce` is a trait object, not a generic parameter, so that Burn's whole server (its
+/// transports, protocol and every operation's handler) is compiled once, in this crate, and
+/// not again in each crate that calls this (BENCHMARKS.md, "prism's own build").
 ///
 /// # Errors
 /// The transport cannot listen on the address alone ([`TransportKind::check_listen`]), the
 /// address cannot be bound, or Burn's server fails.
-pub fn serve(options: ServeOptions, announce: impl FnOnce(&str)) -> Result<(), ServeError> {
+pub fn serve(options: ServeOptions, announce: &dyn Fn(&str)) -> Result<(), ServeError> {
     options.transport.check_listen(options.listen)?;
     let authorizer = Doorkeeper(
         TokenAuthorizer::new(options.token.as_str())

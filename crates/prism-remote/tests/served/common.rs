@@ -20,7 +20,7 @@ pub fn served_device() -> Device {
         identity: None,
         public_relays: false,
     };
-    std::thread::spawn(move || serve(options, move |entry| send.send(entry.into()).unwrap()));
+    std::thread::spawn(move || serve(options, &move |entry| send.send(entry.into()).unwrap()));
     let entry: String = receive.recv_timeout(Duration::from_secs(30)).unwrap();
     let list: DeviceList = entry.parse().unwrap();
     let fingerprint = Fingerprint::this_build(None);

@@ -35,7 +35,7 @@ fn start(transport: TransportKind, fingerprint: Fingerprint) -> String {
     };
     thread::spawn(move || {
         let announced = send.clone();
-        if let Err(e) = serve(options, move |entry| {
+        if let Err(e) = serve(options, &move |entry| {
             announced.send(entry.to_string()).unwrap();
         }) {
             panic!("serve failed: {e}");

@@ -6,7 +6,7 @@
 //! covers the whole image, opacities stay below the 0.99 clamp, depths are well apart, and the
 //! transmittance stays far above the 1e-4 stop.
 
-mod common;
+use crate::common;
 
 use burn::tensor::{Device, Tensor, TensorData};
 use common::{Scene, device, host, orbit_camera, tracked};

@@ -5,7 +5,7 @@
 //! adapter is a failure instead of a skip.
 #![cfg(feature = "wgpu")]
 
-mod common;
+use crate::common;
 
 use burn::tensor::Device;
 use common::{Scene, device, host, orbit_camera, serial, tracked, wgpu};

@@ -1,6 +1,6 @@
 //! Forward pass of the Gaussian rasterizer against closed-form expectations.
 
-mod common;
+use crate::common;
 
 use common::{Scene, axis_camera, device, host, orbit_camera};
 use prism_render::RenderError;

@@ -2,7 +2,7 @@
 //! differences (f32 on ndarray: central differences along whole-tensor directions, relative
 //! tolerances).
 
-mod common;
+use crate::common;
 
 use burn::tensor::Tensor;
 use common::{check_directional, host, ndarray, tensor, uniform};

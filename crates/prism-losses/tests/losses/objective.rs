@@ -1,7 +1,7 @@
 //! The objective: LPIPS-weighted image terms, SMPL-X and distillation losses, the weighted
 //! total, absent terms, the config's defaults and serialisation.
 
-mod common;
+use crate::common;
 
 use burn::tensor::Tensor;
 use common::{host, ndarray, tensor, uniform};

@@ -1,7 +1,7 @@
 //! 3DGS PLY files: round trips for SH degrees 0 to 3, a hand-made degree-3 file, conversion to
 //! and from tensors, and rendering a file.
 
-mod common;
+use crate::common;
 
 use std::path::PathBuf;
 

@@ -10,7 +10,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 #[cfg(feature = "wgpu")]
-mod common;
+use crate::common;
 
 fn device() -> Device {
     BackendKind::Ndarray.device().unwrap()

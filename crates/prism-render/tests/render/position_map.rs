@@ -10,7 +10,7 @@ use prism_core::{BackendKind, Camera, Intrinsics};
 use prism_render::mesh::{rasterize, rasterize_maps};
 
 #[cfg(feature = "wgpu")]
-mod common;
+use crate::common;
 
 /// The nearest hit of the ray `origin + t dir` (t > 0) with the mesh: `(face, [b0, b1, b2], t)`.
 fn ray_cast(

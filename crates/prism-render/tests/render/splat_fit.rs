@@ -1,6 +1,6 @@
 //! Fitting Gaussians to an image by gradient descent through the rasterizer (Adam).
 
-mod common;
+use crate::common;
 
 use burn::module::{Module, Param};
 use burn::optim::{AdamConfig, GradientsParams};

@@ -1,7 +1,7 @@
 //! `L_pts` against a direct host implementation of its documented definition, and its
 //! behaviour under a constant shift of the prediction.
 
-mod common;
+use crate::common;
 
 use common::{ndarray, tensor, uniform};
 use prism_losses::point_loss;
