@@ -1,5 +1,4 @@
 //! Helpers shared by the integration tests: seeded random tensors and finite differences.
-#![allow(dead_code)]
 
 use burn::tensor::{Device, Tensor, TensorData};
 use prism_core::BackendKind;

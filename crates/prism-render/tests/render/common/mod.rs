@@ -1,5 +1,4 @@
 //! Helpers shared by the splatting tests.
-#![allow(dead_code)]
 
 use std::sync::{Mutex, MutexGuard};
 
