@@ -137,7 +137,7 @@ pub enum ServeError {
 ///
 /// `announce` is a trait object, not a generic parameter, so that Burn's whole server (its
 /// transports, protocol and every operation's handler) is compiled once, in this crate, and
-/// not again in each crate that calls this (BENCHMARKS.md, "prism's own build").
+/// not again in each crate that calls this (BENCHMARKS.md, "CI on the slow Xeon host, second round").
 ///
 /// # Errors
 /// The transport cannot listen on the address alone ([`TransportKind::check_listen`]), the

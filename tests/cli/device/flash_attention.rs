@@ -1,6 +1,7 @@
 //! The GPU flash-attention kernels (wgpu) against matmul-softmax-matmul on flex: values, every
-//! input's gradient, finite differences of the kernels' own forward pass, half
-//! precision, and the memory a training step keeps, at two sequence lengths. The strided
+//! input's gradient, finite differences of the kernels' own forward pass, half precision; and
+//! the memory a training step keeps on the adapter at two sequence lengths, against
+//! matmul-softmax-matmul there. The strided
 //! inputs the model makes (slices of one projection, axes swapped) go through them in
 //! [`super::backend`], which runs the tiny model's forward pass and training step on them.
 //!
@@ -91,18 +92,16 @@ fn flash_attention_matches_unfused_attention_values_and_gradients() {
         let inputs = [0, 1, 2].map(|_| random(shape, &device));
         assert!(supported(&inputs[0], &inputs[1], &inputs[2]));
         let [q, k, v] = inputs.clone();
-        let got = values(flash(q.clone(), k.clone(), v.clone()));
-        let [q, k, v] = [q, k, v].map(|x| on_flex(&x));
+        let got = values(flash(q, k, v));
+        let reference_inputs = inputs.clone().map(|x| on_flex(&x));
+        let [q, k, v] = reference_inputs.clone();
         let want = values(unfused::attention(q, k, v));
         assert_close(&format!("{shape:?} output"), &got, &want, 1e-5, 1e-4);
 
         let weights = random(shape, &device);
         let flash_run = forward_and_grads(flash, &inputs, &weights);
-        let reference = forward_and_grads(
-            unfused::attention,
-            &inputs.map(|x| on_flex(&x)),
-            &on_flex(&weights),
-        );
+        let reference =
+            forward_and_grads(unfused::attention, &reference_inputs, &on_flex(&weights));
         for (name, (got, want)) in ["output", "dq", "dk", "dv"]
             .iter()
             .zip(flash_run.iter().zip(&reference))

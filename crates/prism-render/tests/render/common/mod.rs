@@ -112,7 +112,6 @@ pub fn orbit_camera(width: u32, height: u32, f: f32, yaw: f32, pitch: f32) -> Ca
     Camera::orbit(yaw, pitch, 2.5, Vec3::new(0.1, 0.9, -0.05), k)
 }
 
-/// A tensor's values on the host.
 /// `g` with every parameter tracked by autodiff (on an autodiff device).
 pub fn tracked(g: Gaussians) -> Gaussians {
     Gaussians {
@@ -124,6 +123,7 @@ pub fn tracked(g: Gaussians) -> Gaussians {
     }
 }
 
+/// A tensor's values on the host.
 pub fn host<const D: usize>(t: Tensor<D>) -> Vec<f32> {
     t.into_data().convert::<f32>().try_to_vec::<f32>().unwrap()
 }
