@@ -332,7 +332,7 @@ fn distill_student_trains_on_served_devices_like_on_one_local_device() {
 fn a_killed_server_stops_the_trainer_and_the_run_resumes() {
     // Enough steps that the kill lands mid-run (it comes at the second checkpoint), and few:
     // the run trains four times over.
-    const STEPS: usize = 20;
+    const STEPS: usize = 8;
     let dir = scratch("killed");
     let (config, token) = setup(&dir, &tiny_config(STEPS));
     let servers = [

@@ -1,6 +1,6 @@
 //! Host memory views of the CPU backends' tensors, for the fused kernels: flex lends its
 //! buffer (no copy when the tensor is contiguous) and takes the result's `Vec` as its buffer;
-//! ndarray reads and writes through `TensorData` (a copy each way).
+//! ndarray's values are copied out of its array, and results go in through `TensorData`.
 
 // burn-ndarray is deprecated upstream, but the project's tests run on it.
 #![allow(deprecated)]
@@ -8,10 +8,11 @@
 use std::ops::Deref;
 
 use burn::backend::flex::{FlexTensor, Layout};
+use burn::backend::ndarray::NdArrayTensor;
 use burn::backend::ops::FloatTensorOps;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Backend, Flex, NdArray, TensorMetadata};
-use burn::tensor::{Bytes, DType, Shape, TensorData, read_sync};
+use burn::tensor::{Bytes, DType, Shape, TensorData};
 
 /// An f32 tensor's values in host memory, borrowed or owned.
 pub enum HostValues {
@@ -96,11 +97,19 @@ impl HostTensors for Flex {
 }
 
 impl HostTensors for NdArray {
+    /// Copies the array in one piece. burn-ndarray's own `into_data` collects an array that
+    /// another handle shares (a module's weights, read at every call) one element at a time
+    /// through its n-dimensional iterator: three quarters of `prism evaluate`'s time on ndarray
+    /// went there, in the LPIPS network's convolutions.
     fn values(tensor: FloatTensor<Self>) -> HostValues {
-        assert_eq!(tensor.dtype(), DType::F32, "fused kernels take f32 tensors");
-        let data =
-            read_sync(Self::float_into_data(tensor)).expect("ndarray tensors are on the host");
-        HostValues::Owned(data.into_vec::<f32>().expect("f32 tensor data"))
+        let NdArrayTensor::F32(storage) = tensor else {
+            panic!("fused kernels take f32 tensors, got {:?}", tensor.dtype());
+        };
+        let array = storage.view();
+        HostValues::Owned(match array.as_slice() {
+            Some(values) => values.to_vec(),
+            None => array.as_standard_layout().iter().copied().collect(),
+        })
     }
 
     fn tensor(values: Vec<f32>, shape: Shape, device: &Self::Device) -> FloatTensor<Self> {

@@ -439,17 +439,20 @@ fn checkpoints_are_pruned_and_other_configs_are_refused() {
 /// backend the README recommends: 500 steps on ndarray took three times as long.
 #[test]
 fn teacher_training_learns_views_that_copying_cannot_give() {
+    // At 500 steps: 19.14 dB against copying's 14.23 (BENCHMARKS.md, "CI on the slow Xeon
+    // host, third round").
+    const STEPS: usize = 250;
     let _serial = common::serial();
     let data = std::env::temp_dir().join(format!("prism-train-parallax-{}", std::process::id()));
     common::write_dataset_at_depth(&data, 5, 32, -0.5);
-    let config = tiny_config(500, |c| {
+    let config = tiny_config(STEPS, |c| {
         c.model = c.model.clone().paper_outputs();
         c.losses.gs_opacity = 0.0;
         c.losses.smplx = 1.0;
         c.train.lr_backbone = 3e-3;
         c.train.lr_heads = 3e-3;
         c.train.warmup_steps = 20;
-        c.train.checkpoint_every = 500;
+        c.train.checkpoint_every = STEPS;
         c.train.validation_views = 8;
     });
     let out = tempfile::tempdir().unwrap();
@@ -460,9 +463,9 @@ fn teacher_training_learns_views_that_copying_cannot_give() {
         .iter()
         .filter_map(|l| l["loss"].as_f64())
         .collect();
-    assert_eq!(losses.len(), 500);
+    assert_eq!(losses.len(), STEPS);
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
-    let (first, last) = (mean(&losses[..20]), mean(&losses[480..]));
+    let (first, last) = (mean(&losses[..20]), mean(&losses[STEPS - 20..]));
     assert!(last < 0.5 * first, "training loss {first} -> {last}");
     let baseline = summary.baseline.unwrap();
     let initial = summary.initial.unwrap();
