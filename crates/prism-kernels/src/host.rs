@@ -5,6 +5,7 @@
 // burn-ndarray is deprecated upstream, but the project's tests run on it.
 #![allow(deprecated)]
 
+use std::any::Any;
 use std::ops::Deref;
 
 use burn::backend::flex::{FlexTensor, Layout};
@@ -93,6 +94,22 @@ impl HostTensors for Flex {
             return tensor;
         }
         updated_copy::<Self>(tensor, f)
+    }
+}
+
+/// The values of `tensor`, row-major, when it is an f32 ndarray tensor (`B` the ndarray
+/// backend), copied in one piece as [`HostTensors::values`] does; any other tensor comes back
+/// unchanged, for the caller's general path.
+pub fn ndarray_f32_values<B: Backend>(tensor: FloatTensor<B>) -> Result<Vec<f32>, FloatTensor<B>> {
+    let back =
+        |any: Box<dyn Any>| -> FloatTensor<B> { *any.downcast().expect("the tensor's own type") };
+    match (Box::new(tensor) as Box<dyn Any>).downcast::<NdArrayTensor>() {
+        Ok(tensor) if tensor.dtype() == DType::F32 => match NdArray::values(*tensor) {
+            HostValues::Owned(values) => Ok(values),
+            HostValues::Flex(_) => unreachable!("ndarray values are copies"),
+        },
+        Ok(tensor) => Err(back(tensor)),
+        Err(any) => Err(back(any)),
     }
 }
 

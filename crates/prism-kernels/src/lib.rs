@@ -56,6 +56,7 @@ pub use adamw::AdamWStep;
 pub use bf16::Bf16Kernel;
 pub use extension::FusedOps;
 pub use heads::Mixing;
+pub use host::ndarray_f32_values;
 pub use linear_attention::FeatureMap;
 
 /// Whether `x` runs the fused kernels: f32 on flex or ndarray (with or without autodiff).

@@ -18,6 +18,11 @@ use prism_core::reads::count_geometry_read;
 /// If the device cannot be read (a broken device, not bad input).
 pub(crate) fn to_host<B: Backend>(tensor: FloatTensor<B>) -> Vec<f32> {
     count_geometry_read();
+    // On ndarray, Burn's read copies a tensor that autodiff also holds one element at a time.
+    let tensor = match prism_kernels::ndarray_f32_values::<B>(tensor) {
+        Ok(values) => return values,
+        Err(tensor) => tensor,
+    };
     read_sync(B::float_into_data(tensor))
         .expect("reading a tensor to host memory failed")
         .convert::<f32>()
