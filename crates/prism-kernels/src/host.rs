@@ -104,29 +104,33 @@ pub fn ndarray_f32_values<B: Backend>(tensor: FloatTensor<B>) -> Result<Vec<f32>
     let back =
         |any: Box<dyn Any>| -> FloatTensor<B> { *any.downcast().expect("the tensor's own type") };
     match (Box::new(tensor) as Box<dyn Any>).downcast::<NdArrayTensor>() {
-        Ok(tensor) if tensor.dtype() == DType::F32 => match NdArray::values(*tensor) {
-            HostValues::Owned(values) => Ok(values),
-            HostValues::Flex(_) => unreachable!("ndarray values are copies"),
-        },
-        Ok(tensor) => Err(back(tensor)),
+        Ok(tensor) => copy_f32(*tensor).map_err(|tensor| back(Box::new(tensor))),
         Err(any) => Err(back(any)),
     }
 }
 
+/// An f32 ndarray tensor's values, row-major, copied in one piece; a tensor of another dtype
+/// comes back unchanged. burn-ndarray's own `into_data` collects an array that another handle
+/// shares (a module's weights, read at every call; a tensor autodiff keeps) one element at a
+/// time through its n-dimensional iterator: three quarters of `prism evaluate`'s time on
+/// ndarray went there, in the LPIPS network's convolutions.
+fn copy_f32(tensor: NdArrayTensor) -> Result<Vec<f32>, NdArrayTensor> {
+    let NdArrayTensor::F32(storage) = tensor else {
+        return Err(tensor);
+    };
+    let array = storage.view();
+    Ok(match array.as_slice() {
+        Some(values) => values.to_vec(),
+        None => array.as_standard_layout().iter().copied().collect(),
+    })
+}
+
 impl HostTensors for NdArray {
-    /// Copies the array in one piece. burn-ndarray's own `into_data` collects an array that
-    /// another handle shares (a module's weights, read at every call) one element at a time
-    /// through its n-dimensional iterator: three quarters of `prism evaluate`'s time on ndarray
-    /// went there, in the LPIPS network's convolutions.
     fn values(tensor: FloatTensor<Self>) -> HostValues {
-        let NdArrayTensor::F32(storage) = tensor else {
-            panic!("fused kernels take f32 tensors, got {:?}", tensor.dtype());
-        };
-        let array = storage.view();
-        HostValues::Owned(match array.as_slice() {
-            Some(values) => values.to_vec(),
-            None => array.as_standard_layout().iter().copied().collect(),
-        })
+        let values = copy_f32(tensor).unwrap_or_else(|tensor| {
+            panic!("fused kernels take f32 tensors, got {:?}", tensor.dtype())
+        });
+        HostValues::Owned(values)
     }
 
     fn tensor(values: Vec<f32>, shape: Shape, device: &Self::Device) -> FloatTensor<Self> {
