@@ -207,12 +207,6 @@ pub struct PrismConfig {
     /// photo and its camera. 0 (the default) keeps `depth_prior`.
     #[config(default = 0.0)]
     pub anchor_height: f64,
-    /// The point branch starts each source pixel the SMPL-X branch's posed body covers at the
-    /// body's distance along the pixel's ray (the rest at `depth_prior`, or the anchor): the
-    /// relief of a body the model regressed from the photo, instead of a plane. Needs both
-    /// branches.
-    #[config(default = false)]
-    pub body_depth: bool,
     /// Initial value of the gates `g_smpl` and `g_pts` (`g_res` starts at 0). Not 0: behind a
     /// zero-initialised convolution a zero gate never receives a gradient (see
     /// `geometry/injection.rs`).
@@ -351,12 +345,6 @@ impl PrismConfig {
             return fail(
                 "model.anchor_height",
                 format!("{} is not 0 or a positive number", self.anchor_height),
-            );
-        }
-        if self.body_depth && !(self.smplx_branch && self.point_branch) {
-            return fail(
-                "model.body_depth",
-                "needs smplx_branch = true and point_branch = true".into(),
             );
         }
         if !(self.gs_rim_depth.is_finite() && self.gs_rim_depth >= 0.0) {
@@ -550,7 +538,6 @@ point_features = 8
 point_colours = false
 depth_prior = 2.0
 anchor_height = 0.0
-body_depth = false
 gate_init = 1.0
 gs_colour = "regressed"
 gs_depth = "head"

@@ -80,7 +80,6 @@ impl PrismConfig {
                 self.depth_prior,
             )
             .with_anchor_height(self.anchor_height)
-            .with_body_depth(self.body_depth)
             .with_init_std(self.init_std)
             .with_colours(self.point_colours)
             .init(device)
@@ -381,15 +380,6 @@ impl Prism {
         });
         let points = self.point_branch.as_ref().map(|branch| {
             let taps: Vec<Tensor<3>> = tapped.iter().map(source_of).collect();
-            let body = smplx.as_ref().filter(|_| branch.starts_at_body()).map(|s| {
-                let sources = views
-                    .expect("checked")
-                    .source_at(source_width, source_height);
-                self.smplx_branch
-                    .as_ref()
-                    .expect("an SMPL-X output comes from the branch")
-                    .source_distance(s.world_vertices.clone(), &sources)
-            });
             branch.forward(
                 &taps,
                 &source_image,
@@ -398,7 +388,6 @@ impl Prism {
                 grid,
                 height,
                 width,
-                body,
             )
         });
         let t_mid = self.inject(

@@ -7,8 +7,7 @@
 //! - distance along the pixel's unit ray `t = softplus(x_t + softplus^-1(depth_prior))` (the
 //!   subject is about `depth_prior` = 2 m away at initialisation; with `anchor_height`, the
 //!   distance to the person's plane judged from the silhouette's height instead, see
-//!   [`anchor`]; with `body_depth`, the distance to the SMPL-X branch's posed body where the
-//!   body covers the pixel) and the world point
+//!   [`anchor`]) and the world point
 //!   `X = o + t d` (`o` the source camera centre, `d` the ray direction of the Plücker map): the
 //!   ground-truth point map lies on the pixel rays, so only the distance is free;
 //! - confidence `C = 1 + exp(x_c)` (`x_c` clamped to 15 against overflow), for `L_pts`;
@@ -63,10 +62,6 @@ pub(crate) struct PointBranchConfig {
     /// The points also carry their source pixel's colour into `F_pts`.
     #[config(default = false)]
     pub colours: bool,
-    /// Each pixel the SMPL-X branch's body covers starts at the body's distance (the model
-    /// passes it to [`PointBranch::forward`]).
-    #[config(default = false)]
-    pub body_depth: bool,
 }
 
 impl PointBranchConfig {
@@ -87,7 +82,6 @@ impl PointBranchConfig {
             depth_prior: self.depth_prior as f32,
             anchor_height: self.anchor_height as f32,
             colours: self.colours,
-            body_depth: self.body_depth,
         }
     }
 }
@@ -107,8 +101,6 @@ pub struct PointBranch {
     anchor_height: f32,
     #[module(skip)]
     colours: bool,
-    #[module(skip)]
-    body_depth: bool,
 }
 
 /// What the point branch predicts for a batch of `B` pairs.
@@ -146,12 +138,6 @@ impl PointBranch {
         &self.taps
     }
 
-    /// Whether the branch starts from the SMPL-X branch's body (`body_depth`): then
-    /// [`PointBranch::forward`] wants the body's distances.
-    pub fn starts_at_body(&self) -> bool {
-        self.body_depth
-    }
-
     /// Channels of `F_pts`: `F + 2`, `F + 5` with colours.
     pub fn feature_channels(&self) -> usize {
         self.features + 2 + if self.colours { 3 } else { 0 }
@@ -159,9 +145,8 @@ impl PointBranch {
 
     /// The branch on the source tokens of its taps (`[B, T_s, d]` each, in the order of
     /// [`PointBranch::taps`]), the source image `[B, 3, H_s, W_s]` (read with `colours`), the
-    /// source rays `[B, 6, H_s, W_s]`, the views and, with `body_depth`, the body's
-    /// `(distance, mask)` at the source pixels ([`crate::geometry::smplx::SmplxBranch::source_distance`]);
-    /// `F_pts` at the target size `height x width`.
+    /// source rays `[B, 6, H_s, W_s]` and the views; `F_pts` at the target size
+    /// `height x width`.
     #[allow(clippy::too_many_arguments)]
     pub fn forward(
         &self,
@@ -172,34 +157,23 @@ impl PointBranch {
         grid: (usize, usize),
         height: usize,
         width: usize,
-        body: Option<(Tensor<4>, Tensor<4>)>,
     ) -> PointOutput {
         let [b, _, hs, ws] = source_rays.dims();
         let raw = self.dpt.forward(taps, grid, hs, ws);
         let start = raw.clone().narrow(1, 0, 1);
-        let prior = (self.anchor_height > 0.0).then(|| {
+        let start = if self.anchor_height > 0.0 {
             let directions = source_rays.clone().narrow(1, 0, 3);
-            anchor::silhouette_anchor(
+            let anchor = anchor::silhouette_anchor(
                 source_image,
                 &directions,
                 views.background,
                 self.anchor_height,
                 self.depth_prior,
-            )
-        });
-        let prior = match body {
-            Some((distance, mask)) => {
-                let elsewhere = prior.unwrap_or_else(|| {
-                    Tensor::full([b, 1, hs, ws], self.depth_prior, &distance.device())
-                });
-                Some(distance * mask.clone() + elsewhere * (mask.neg().add_scalar(1.0)))
-            }
-            None => prior,
-        };
-        let start = match prior {
-            // softplus^-1 of the prior, per pixel.
-            Some(prior) => start + prior.exp().sub_scalar(1.0).clamp_min(1e-12).log(),
-            None => start.add_scalar(inverse_softplus(self.depth_prior)),
+            );
+            // softplus^-1 of the anchor, per pixel.
+            start + anchor.exp().sub_scalar(1.0).clamp_min(1e-12).log()
+        } else {
+            start.add_scalar(inverse_softplus(self.depth_prior))
         };
         let distance = softplus(start, 1.0);
         let confidence = raw
@@ -263,7 +237,7 @@ mod tests {
             .map(|_| Tensor::random([2, 4, 16], Distribution::Normal(0.0, 1.0), &device))
             .collect();
         let image = Tensor::<4>::random([2, 3, 16, 16], Distribution::Uniform(0.0, 1.0), &device);
-        let out = branch.forward(&taps, &image, &rays, &views, (2, 2), 16, 16, None);
+        let out = branch.forward(&taps, &image, &rays, &views, (2, 2), 16, 16);
         assert_eq!(out.points.dims(), [2, 3, 16, 16]);
         assert_eq!(out.confidence.dims(), [2, 1, 16, 16]);
         assert_eq!(out.features.dims(), [2, 4 + 2, 16, 16]);
@@ -276,25 +250,6 @@ mod tests {
             assert!((u - ((i % 16) as f32 + 0.5)).abs() < 1e-2);
             assert!((v - ((i / 16) as f32 + 0.5)).abs() < 1e-2);
             assert!(((p - camera.center()).length() - 2.0).abs() < 0.4);
-        }
-        // With `body_depth`, the pixels a body covers start at its distance, the rest at the
-        // prior.
-        let mut with_body = PointBranchConfig::new(16, vec![0, 1], 8, 8, 4, 2.0)
-            .with_body_depth(true)
-            .init(&device);
-        with_body.dpt = branch.dpt.clone();
-        let mask = Tensor::<4>::ones([2, 1, 16, 8], &device);
-        let mask = Tensor::cat(vec![mask.clone(), mask.zeros_like()], 3);
-        let body = (mask.clone().mul_scalar(3.0), mask);
-        let near = with_body.forward(&taps, &image, &rays, &views, (2, 2), 16, 16, Some(body));
-        let (plain, near) = (values(&out.distance), values(&near.distance));
-        for (i, (&p, &d)) in plain.iter().zip(&near).enumerate() {
-            let start = if i % 16 < 8 { 3.0 } else { 2.0 };
-            // softplus(x + softplus^-1(s)) is s + x to first order: the head's offset carries.
-            assert!(
-                (d - start - (p - 2.0)).abs() < 0.05,
-                "pixel {i}: {d} against {p}"
-            );
         }
         // The splatted points cover part of the target views.
         let coverage = values(&out.features.clone().narrow(1, 4, 1));

@@ -46,7 +46,7 @@ use prism_render::mesh::{FragmentMaps, rasterize_maps};
 use prism_render::triplane::sample_triplane;
 
 use crate::geometry::points::inverse_softplus;
-use crate::views::{Views, centres};
+use crate::views::Views;
 #[cfg(test)]
 use placement::scale_for_height;
 use rotation::{IDENTITY_6D, rotation_6d_to_matrix};
@@ -379,24 +379,6 @@ impl SmplxBranch {
         (fragments, map)
     }
 
-    /// Each source pixel's distance along its ray to the posed body `world` `[B, V, 3]` (as
-    /// [`SmplxBranch::world_vertices`] places it) seen through `sources`, and where the body
-    /// covers the pixel: `(distance, mask)`, both `[B, 1, H, W]`, the distance 0 off the body.
-    /// No gradient: the body is posed without one.
-    pub fn source_distance(&self, world: Tensor<3>, sources: &[Camera]) -> (Tensor<4>, Tensor<4>) {
-        let device = world.device();
-        let fragments = rasterize_maps(world.clone(), &self.faces, sources)
-            .expect("the body and the source cameras fit together");
-        let mask = fragments.mask();
-        let points = fragments.interpolate(world.detach(), &self.faces);
-        let distance = (points - centres(sources, &device))
-            .powi_scalar(2)
-            .sum_dim(1)
-            .sqrt()
-            * mask.clone();
-        (distance, mask)
-    }
-
     /// The whole branch (see the module docs) on the source tokens of `T_mid` `[B, T_s, d]`
     /// of source images of `source_size = (height, width)`, for target images of
     /// `height x width`.
@@ -567,55 +549,6 @@ mod tests {
         for (i, v) in posed_model.shaped.iter().enumerate() {
             let got = Vec3::from_slice(&rest[3 * i..3 * i + 3]);
             assert!((got - *v).length() < 1e-4, "vertex {i}: {got} vs {v}");
-        }
-    }
-
-    /// A posed body pressed flat onto the plane 2.5 m in front of the camera (its silhouette
-    /// unchanged): every pixel it covers is at that plane's distance along its ray, by
-    /// `Camera::unproject`, and the others are 0 and off the mask.
-    #[test]
-    fn source_distance_is_the_body_s_distance_along_each_pixel_ray() {
-        let device = ndarray();
-        let model = body_model::load_body_model("procedural:0").unwrap();
-        let branch = SmplxBranchConfig::new(16, 16, 8, 4, 1.77, 2.0).init(&model, &device);
-        let camera = Camera::orbit(
-            0.0,
-            0.0,
-            2.0,
-            Vec3::new(0.0, 0.9, 0.0),
-            Intrinsics::protocol_default(32, 32),
-        );
-        let plane = 2.5;
-        let flat: Vec<f32> = model
-            .pose(&fit())
-            .vertices
-            .iter()
-            .flat_map(|&v| {
-                let p = camera.world_to_camera(v) * (plane / camera.world_to_camera(v).z);
-                camera.c2w.transform_point3(p).to_array()
-            })
-            .collect();
-        let n = flat.len() / 3;
-        let world = Tensor::<3>::from_data(TensorData::new(flat, [1, n, 3]), &device);
-        let (distance, mask) = branch.source_distance(world, &[camera]);
-        let (distance, mask) = (values(&distance), values(&mask));
-        let covered = mask.iter().filter(|&&m| m == 1.0).count();
-        assert!(
-            covered > 60 && covered < 32 * 32 / 2,
-            "{covered} pixels covered"
-        );
-        for (i, (&d, &m)) in distance.iter().zip(&mask).enumerate() {
-            let (u, v) = ((i % 32) as f32 + 0.5, (i / 32) as f32 + 0.5);
-            let expected = if m == 1.0 {
-                (camera.unproject(u, v, plane) - camera.center()).length()
-            } else {
-                assert_eq!(m, 0.0);
-                0.0
-            };
-            assert!(
-                (d - expected).abs() < 1e-4,
-                "pixel {i}: {d} against {expected}"
-            );
         }
     }
 
