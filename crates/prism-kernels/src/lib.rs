@@ -46,6 +46,7 @@ mod norm;
 #[cfg(test)]
 mod test_util;
 pub mod unfused;
+mod warm;
 
 use burn::backend::{Dispatch, DispatchDevice};
 use burn::nn::conv::Conv2d;
@@ -58,6 +59,7 @@ pub use extension::FusedOps;
 pub use heads::Mixing;
 pub use host::ndarray_f32_values;
 pub use linear_attention::FeatureMap;
+pub use warm::warm;
 
 /// Whether `x` runs the fused kernels: f32 on flex or ndarray (with or without autodiff).
 pub fn is_fused<const D: usize>(x: &Tensor<D>) -> bool {

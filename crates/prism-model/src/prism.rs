@@ -270,7 +270,9 @@ impl Prism {
         target_rays: Tensor<4>,
         hidden_layers: &[usize],
     ) -> PrismOutput {
-        self.forward_impl(source_image, source_rays, target_rays, None, hidden_layers)
+        prism_kernels::warm(&source_image.device(), || {
+            self.forward_impl(source_image, source_rays, target_rays, None, hidden_layers)
+        })
     }
 
     /// The forward pass on a batch of (source, target) pairs.
@@ -295,13 +297,15 @@ impl Prism {
         views: &Views,
         hidden_layers: &[usize],
     ) -> PrismOutput {
-        self.forward_impl(
-            source_image,
-            source_rays,
-            target_rays,
-            Some(views),
-            hidden_layers,
-        )
+        prism_kernels::warm(&source_image.device(), || {
+            self.forward_impl(
+                source_image,
+                source_rays,
+                target_rays,
+                Some(views),
+                hidden_layers,
+            )
+        })
     }
 
     /// [`Prism::forward_views`] on a dataset batch: its source images and rays, target rays and

@@ -249,9 +249,18 @@ impl<'a> TrainingStep<'a> {
     /// divided by it after), clipping, and the optimizer's step unless the loss or the
     /// gradient is not finite; then the loss scale's update.
     ///
+    /// On a CPU backend the step runs with rayon's workers kept awake between its kernels
+    /// ([`prism_kernels::warm`]).
+    ///
     /// # Errors
     /// A worker failure, or a server that cannot load its share.
     pub fn run(&mut self, step: usize, shares: Vec<Share>) -> Result<StepReport> {
+        let device = self.parallel.main_device().clone();
+        prism_kernels::warm(&device, || self.step(step, shares))
+    }
+
+    /// [`TrainingStep::run`]'s work.
+    fn step(&mut self, step: usize, shares: Vec<Share>) -> Result<StepReport> {
         let lr = self.scheduler.step();
         let loss_scale = self.scaler.as_ref().map(LossScaler::scale);
         let shares = self.items(shares, step, loss_scale.unwrap_or(1.0))?;
