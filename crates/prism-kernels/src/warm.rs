@@ -38,10 +38,19 @@ pub fn warm<R>(device: &Device, f: impl FnOnce() -> R) -> R {
                 }
             });
         }
-        let out = f();
-        done.store(true, Ordering::Release);
-        out
+        // Stops the spinners when `f` returns or panics: the scope waits for them either way.
+        let _stop = Stop(&done);
+        f()
     })
+}
+
+/// Sets the spinners' flag when dropped, on return or unwinding.
+struct Stop<'a>(&'a AtomicBool);
+
+impl Drop for Stop<'_> {
+    fn drop(&mut self) {
+        self.0.store(true, Ordering::Release);
+    }
 }
 
 #[cfg(test)]
@@ -72,5 +81,18 @@ mod tests {
         assert!(got);
         // Outside any pool, on the global one.
         assert_eq!(warm(&device, || sum(100_000)), expected);
+    }
+
+    /// A panic in the closure reaches the caller: the spinners stop and the scope ends.
+    #[test]
+    fn a_panic_in_a_warm_closure_reaches_the_caller() {
+        let device = Device::ndarray();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .unwrap();
+        let caught =
+            pool.install(|| std::panic::catch_unwind(|| warm(&device, || panic!("in the pass"))));
+        assert!(caught.is_err());
     }
 }
