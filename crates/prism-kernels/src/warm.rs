@@ -61,18 +61,22 @@ mod tests {
     use super::*;
     use rayon::prelude::*;
 
+    /// A pool of `threads` workers of its own.
+    fn pool(threads: usize) -> rayon::ThreadPool {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+    }
+
     /// Parallel work inside a warm closure, and a warm closure inside another, runs to its
     /// result and returns: the spinners take jobs and stop when the closure is done.
     #[test]
     fn warm_closures_run_parallel_work_and_return() {
         let device = Device::ndarray();
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(3)
-            .build()
-            .unwrap();
         let sum = |n: u64| (0..n).into_par_iter().map(|i| i * i).sum::<u64>();
         let expected = sum(100_000);
-        let got = pool.install(|| {
+        let got = pool(3).install(|| {
             warm(&device, || {
                 let inner = warm(&device, || sum(100_000));
                 (0..20).map(|_| sum(100_000)).all(|s| s == expected) && inner == expected
@@ -87,12 +91,8 @@ mod tests {
     #[test]
     fn a_panic_in_a_warm_closure_reaches_the_caller() {
         let device = Device::ndarray();
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(2)
-            .build()
-            .unwrap();
-        let caught =
-            pool.install(|| std::panic::catch_unwind(|| warm(&device, || panic!("in the pass"))));
+        let caught = pool(2)
+            .install(|| std::panic::catch_unwind(|| warm(&device, || panic!("in the pass"))));
         assert!(caught.is_err());
     }
 }
