@@ -111,7 +111,7 @@ pub(crate) fn matmul(dst: &mut [f32], accumulate: bool, lhs: View<'_>, rhs: View
 /// its longer side, and each band is its own single-threaded product. On the backbone's shapes
 /// (512 rows, widths 256 to 1024) this ran at 1.0x to 1.24x `gemm`'s own two-thread speed on a
 /// 2-core Xeon, most for the backward pass's transposed operands (BENCHMARKS.md, issue 43's
-/// "Each thread its own product"). A band is at least [`MIN_BAND`] wide; a product too small for
+/// "Each thread its own product band, and the workers kept awake"). A band is at least [`MIN_BAND`] wide; a product too small for
 /// two bands runs on one thread.
 pub(crate) fn product(a: View<'_>, b: View<'_>) -> Vec<f32> {
     let (m, n) = (a.rows, b.cols);

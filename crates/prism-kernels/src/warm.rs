@@ -8,9 +8,9 @@
 //! [`rayon::yield_now`], which runs any job that appears (stolen or its own) and otherwise
 //! returns at once, so the worker never reaches its sleep. Between jobs it yields its core to
 //! any other thread that wants it (the data loader's), so it keeps the core only from the idle
-//! task. On a 2-core Xeon this took the backbone's passes at 128 px to 0.94x to 0.97x of their
-//! time and the training step to 0.96x (BENCHMARKS.md, issue 43's "Each thread its own product,
-//! and the workers kept awake").
+//! task. On a 2-core Xeon this took the backbone's forward passes at 128 px to 0.95x to 0.96x of
+//! their time and the training step to 0.92x (BENCHMARKS.md, issue 43's "Each thread its own
+//! product band, and the workers kept awake").
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
