@@ -62,6 +62,24 @@ impl<'a> View<'a> {
         self.data[r * self.row_stride + c * self.col_stride]
     }
 
+    /// Rows `start..end` of the view.
+    fn row_range(self, start: usize, end: usize) -> Self {
+        Self {
+            data: &self.data[start * self.row_stride..],
+            rows: end - start,
+            ..self
+        }
+    }
+
+    /// Columns `start..end` of the view.
+    fn col_range(self, start: usize, end: usize) -> Self {
+        Self {
+            data: &self.data[start * self.col_stride..],
+            cols: end - start,
+            ..self
+        }
+    }
+
     /// The view's values copied out row-major (of a transposed view: the transpose).
     ///
     /// `gemm` multiplies fastest with its right operand row-major: given one transposed, it
@@ -99,7 +117,9 @@ impl<'a> View<'a> {
 /// `dst (row-major lhs.rows x rhs.cols) = [dst +] scale * lhs rhs`, single-threaded (the
 /// callers parallelise: attention over heads and blocks, convolutions over images).
 pub(crate) fn matmul(dst: &mut [f32], accumulate: bool, lhs: View<'_>, rhs: View<'_>, scale: f32) {
-    gemm_into(dst, accumulate, lhs, rhs, scale);
+    assert_eq!(dst.len(), lhs.rows * rhs.cols, "matmul: output size");
+    // SAFETY: `dst` holds exactly `m x n` initialised values, row-major.
+    unsafe { gemm_call(dst.as_mut_ptr(), rhs.cols, accumulate, lhs, rhs, scale) };
 }
 
 /// The row-major `a b` through `gemm`, on all of rayon's threads when the product is large
@@ -111,8 +131,8 @@ pub(crate) fn matmul(dst: &mut [f32], accumulate: bool, lhs: View<'_>, rhs: View
 /// its longer side, and each band is its own single-threaded product. On the backbone's shapes
 /// (512 rows, widths 256 to 1024) this ran at 1.0x to 1.24x `gemm`'s own two-thread speed on a
 /// 2-core Xeon, most for the backward pass's transposed operands (BENCHMARKS.md, issue 43's
-/// "Each thread its own product band, and the workers kept awake"). A band is at least [`MIN_BAND`] wide; a product too small for
-/// two bands runs on one thread.
+/// "Each thread its own product band, and the workers kept awake"). A band is at least
+/// [`MIN_BAND`] wide; a product too small for two bands runs on one thread.
 pub(crate) fn product(a: View<'_>, b: View<'_>) -> Vec<f32> {
     let (m, n) = (a.rows, b.cols);
     let len = m * n;
@@ -183,36 +203,7 @@ impl Destination {
     }
 }
 
-impl<'a> View<'a> {
-    /// Rows `start..end` of the view.
-    fn row_range(self, start: usize, end: usize) -> Self {
-        Self {
-            data: &self.data[start * self.row_stride..],
-            rows: end - start,
-            ..self
-        }
-    }
-
-    /// Columns `start..end` of the view.
-    fn col_range(self, start: usize, end: usize) -> Self {
-        Self {
-            data: &self.data[start * self.col_stride..],
-            cols: end - start,
-            ..self
-        }
-    }
-}
-
-/// `dst = [dst +] scale * lhs rhs` through `gemm`, single-threaded.
-fn gemm_into(dst: &mut [f32], accumulate: bool, lhs: View<'_>, rhs: View<'_>, scale: f32) {
-    assert_eq!(dst.len(), lhs.rows * rhs.cols, "matmul: output size");
-    // SAFETY: `dst` holds exactly `m x n` initialised values, row-major.
-    unsafe {
-        gemm_call(dst.as_mut_ptr(), rhs.cols, accumulate, lhs, rhs, scale);
-    }
-}
-
-/// The single-threaded `gemm` call behind [`gemm_into`] and [`product`]'s bands.
+/// The single-threaded `gemm` call behind [`matmul`] and [`product`]'s bands.
 ///
 /// # Safety
 /// `dst` is valid for writes of `lhs.rows x rhs.cols` values at row stride `dst_row_stride`,
