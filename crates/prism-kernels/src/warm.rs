@@ -12,6 +12,7 @@
 //! their time and the training step to 0.92x (BENCHMARKS.md, issue 43's "Each thread its own
 //! product band, and the workers kept awake").
 
+use std::cell::Cell;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use burn::tensor::Device;
@@ -21,9 +22,11 @@ use crate::is_host;
 /// Runs `f` with the current rayon pool's other workers spinning for work instead of sleeping
 /// (see the module docs) when `device` is one of the CPU backends the host kernels run on;
 /// `f`'s result. On other devices `f` just runs: the threads would only wait for the device.
+/// Inside another warm closure on the same thread (a training step's forward passes) `f` just
+/// runs too: the workers are awake already.
 pub fn warm<R>(device: &Device, f: impl FnOnce() -> R) -> R {
     let others = rayon::current_num_threads().saturating_sub(1);
-    if others == 0 || !is_host(device) {
+    if others == 0 || !is_host(device) || WARM.get() {
         return f();
     }
     let done = AtomicBool::new(false);
@@ -40,16 +43,24 @@ pub fn warm<R>(device: &Device, f: impl FnOnce() -> R) -> R {
         }
         // Stops the spinners when `f` returns or panics: the scope waits for them either way.
         let _stop = Stop(&done);
+        WARM.set(true);
         f()
     })
 }
 
-/// Sets the spinners' flag when dropped, on return or unwinding.
+thread_local! {
+    /// Whether this thread runs a warm closure now.
+    static WARM: Cell<bool> = const { Cell::new(false) };
+}
+
+/// Sets the spinners' flag, and clears this thread's [`WARM`], when dropped: on return or
+/// unwinding.
 struct Stop<'a>(&'a AtomicBool);
 
 impl Drop for Stop<'_> {
     fn drop(&mut self) {
         self.0.store(true, Ordering::Release);
+        WARM.set(false);
     }
 }
 
