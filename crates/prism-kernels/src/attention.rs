@@ -57,12 +57,12 @@ pub fn forward(q: &[f32], k: &[f32], v: &[f32], dims: Dims, scale: f32) -> (Vec<
             (span, keys)
         },
         // One score buffer per worker thread, reused by its blocks (gemm overwrites it).
-        || vec![0.0; BLOCK.min(tokens) * tokens],
-        |(span, keys), b, o, lse, p| {
+        || (vec![0.0; BLOCK.min(tokens) * tokens], [0.0f32; BLOCK]),
+        |(span, keys), b, o, lse, (p, inv)| {
             let rows = lse.len();
             let v = &v[span.clone()];
             let q = &q[span.start + b * BLOCK * head_dim..][..rows * head_dim];
-            let p = &mut p[..rows * tokens];
+            let (p, inv) = (&mut p[..rows * tokens], &mut inv[..rows]);
             matmul(
                 p,
                 false,
@@ -70,7 +70,7 @@ pub fn forward(q: &[f32], k: &[f32], v: &[f32], dims: Dims, scale: f32) -> (Vec<
                 View::rows(keys, head_dim, tokens),
                 scale,
             );
-            softmax_rows(p, tokens, lse);
+            exponentials(p, tokens, 1.0, lse, inv);
             matmul(
                 o,
                 false,
@@ -78,6 +78,7 @@ pub fn forward(q: &[f32], k: &[f32], v: &[f32], dims: Dims, scale: f32) -> (Vec<
                 View::rows(v, tokens, head_dim),
                 1.0,
             );
+            divide_rows(o, head_dim, inv);
         },
     )
 }
@@ -132,9 +133,7 @@ fn forward_amx(q: &[f32], k: &[f32], v: &[f32], dims: Dims, scale: f32) -> (Vec<
             exponentials(p, tokens, scale, lse, inv);
             packed.pack(View::rows(p, rows, tokens), 0, rows, 0, tokens);
             product(&tiles, packed, values, o, head_dim, false);
-            for (row, &inv) in o.chunks_exact_mut(head_dim).zip(inv.iter()) {
-                row.iter_mut().for_each(|x| *x *= inv);
-            }
+            divide_rows(o, head_dim, inv);
         },
     )
 }
@@ -174,13 +173,11 @@ where
     (o, lse.concat())
 }
 
-/// Each row of `p` (rows of `len`) replaced by its softmax; `lse` gets the rows'
-/// log-sum-exp.
-fn softmax_rows(p: &mut [f32], len: usize, lse: &mut [f32]) {
-    let mut inv = [0.0; BLOCK];
-    let inv = &mut inv[..lse.len()];
-    exponentials(p, len, 1.0, lse, inv);
-    for (row, &inv) in p.chunks_exact_mut(len).zip(inv.iter()) {
+/// Each row of `o` (rows of `len`) multiplied by its entry of `inv`: the exponentials'
+/// weighted sums divided by the exponentials' sums after the product, on `len` values a row
+/// rather than on the block's scores.
+fn divide_rows(o: &mut [f32], len: usize, inv: &[f32]) {
+    for (row, &inv) in o.chunks_exact_mut(len).zip(inv) {
         row.iter_mut().for_each(|x| *x *= inv);
     }
 }
