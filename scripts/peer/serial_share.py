@@ -1,0 +1,103 @@
+#!/usr/bin/env python3
+"""How much of a 2-thread prism run one thread does alone, and in what.
+
+    perf record -F 1999 -g -o perf.data prism bench --config configs/small.toml \\
+        --models teacher --iters 1 --warmup 0 --train-steps 40
+    perf script -i perf.data -F tid,time,ip,sym > samples.txt
+    python3 scripts/peer/serial_share.py samples.txt [--skip 0.35]
+
+Inside `prism_kernels::warm` rayon's idle worker loops in `sched_yield` instead of sleeping,
+so it is sampled while it waits. A sample of the busy thread counts as serial when the other
+worker's nearest sample (within 1 ms) is in that loop. `--skip` leaves out the first part of the
+run (loading, the first steps' page faults). Prints the serial share of the busy thread's
+samples, by the kind of code that ran, and the leaf functions that took most of it.
+"""
+import argparse
+import bisect
+import collections
+
+# Frames of a worker that waits for work.
+WAITING = ("sched_yield", "yield_now", "__schedule", "futex")
+
+# The kind of code a leaf function belongs to, first match wins.
+KINDS = [
+    (("burn_flex", "macerator"), "Burn's flex ops (element-wise, copies, reductions)"),
+    (("memmove", "memcpy"), "memmove / memcpy"),
+    (("memset",), "memset (zeroed buffers)"),
+    (("gemm",), "gemm (products not split between the threads)"),
+    (("prism_render",), "prism-render (rasteriser, triplane)"),
+    (("prism_kernels",), "prism-kernels (norms, GELU, AdamW, attention)"),
+    (("mi_", "alloc", "page"), "allocator and page faults"),
+    (("exp", "log", "pow", "libm"), "libm"),
+]
+
+
+def read(path):
+    """tid -> [(time, [frames, leaf first])] from `perf script -F tid,time,ip,sym`."""
+    samples = collections.defaultdict(list)
+    current = None
+    for line in open(path):
+        line = line.rstrip("\n")
+        if not line.strip():
+            current = None
+        elif not line[0].isspace():
+            tid, time = line.split()[:2]
+            current = (float(time.rstrip(":")), [])
+            samples[int(tid)].append(current)
+        elif current is not None:
+            parts = line.split(None, 1)
+            current[1].append(parts[1] if len(parts) > 1 else "?")
+    return samples
+
+
+def waiting(frames):
+    return any(w in f for f in frames[:12] for w in WAITING)
+
+
+def kind(leaf):
+    for needles, name in KINDS:
+        if any(n in leaf for n in needles):
+            return name
+    return "other"
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("samples")
+    parser.add_argument("--skip", type=float, default=0.35,
+                        help="share of the run's start to leave out (default 0.35)")
+    args = parser.parse_args()
+    samples = read(args.samples)
+    threads = sorted(samples, key=lambda t: -len(samples[t]))[:2]
+    if len(threads) < 2:
+        raise SystemExit(f"{args.samples}: fewer than two threads were sampled")
+    busy, other = sorted(threads, key=lambda t: sum(waiting(s[1]) for s in samples[t]))
+    start, end = samples[busy][0][0], samples[busy][-1][0]
+    cut = start + args.skip * (end - start)
+    other_times = [s[0] for s in samples[other]]
+    total, kinds, leaves = 0, collections.Counter(), collections.Counter()
+    for time, frames in samples[busy]:
+        if time < cut or not frames:
+            continue
+        total += 1
+        if waiting(frames):
+            continue
+        i = bisect.bisect_left(other_times, time)
+        near = min((samples[other][j] for j in (i - 1, i) if 0 <= j < len(other_times)),
+                   key=lambda s: abs(s[0] - time))
+        if abs(near[0] - time) < 0.001 and waiting(near[1]):
+            kinds[kind(frames[0])] += 1
+            leaves[frames[0][:100]] += 1
+    serial = sum(kinds.values())
+    print(f"busy thread {busy}: {total} samples, {serial} while the other waited "
+          f"({100 * serial / max(total, 1):.1f}%)\n")
+    print("| code | samples | share of the busy thread's |\n|---|---:|---:|")
+    for name, n in kinds.most_common():
+        print(f"| {name} | {n} | {100 * n / total:.1f}% |")
+    print("\nleaf functions:")
+    for leaf, n in leaves.most_common(15):
+        print(f"{n:7d}  {leaf}")
+
+
+if __name__ == "__main__":
+    main()
