@@ -56,7 +56,8 @@ pub fn forward(q: &[f32], k: &[f32], v: &[f32], dims: Dims, scale: f32) -> (Vec<
             let keys = View::transposed(&k[span.clone()], head_dim, tokens).to_rows();
             (span, keys)
         },
-        // One score buffer per worker thread, reused by its blocks (gemm overwrites it).
+        // One score buffer per worker thread, reused by its blocks (gemm overwrites it), and
+        // its rows' inverse sums.
         || (vec![0.0; BLOCK.min(tokens) * tokens], [0.0f32; BLOCK]),
         |(span, keys), b, o, lse, (p, inv)| {
             let rows = lse.len();
