@@ -330,8 +330,14 @@ impl TableArgs {
             warmup: self.warmup,
             iters: self.iters.max(1),
         };
+        // On a CPU backend, the host kernels' code too (AVX-512, AVX2 or the baseline).
+        let kernels = if prism_kernels::is_host(&device) {
+            format!(", host kernels {}", prism_kernels::HostIsa::chosen().name())
+        } else {
+            String::new()
+        };
         println!(
-            "{} on {} ({}), blocks in {}",
+            "{} on {} ({}), blocks in {}{kernels}",
             path.display(),
             self.backend,
             device_name(&device),

@@ -4,8 +4,9 @@
 //! pass over memory per elementary op: a LayerNorm is about eight, softmax attention
 //! materialises the `T x T` scores three times, GELU calls libm's scalar `erf`. Here each of
 //! GELU, LayerNorm (no bias), RMSNorm and softmax attention is one kernel forward and one
-//! backward, vectorised for AVX-512 / AVX2 (chosen at run time) and split over threads;
-//! attention runs block by block over the queries with `gemm` (FlashAttention's scheme).
+//! backward, vectorised for AVX-512 / AVX2 (chosen at run time: [`HostIsa`]) and split over
+//! threads; attention runs block by block over the queries with `gemm` (FlashAttention's
+//! scheme).
 //!
 //! The blocks' and heads' matrix products ([`linear`], [`matmul`], [`matmul_left`]) and the
 //! heads' and LPIPS's convolutions ([`conv2d`], im2col and `gemm`) are one node each too, their
@@ -39,6 +40,7 @@ mod elementwise;
 mod extension;
 mod heads;
 mod host;
+mod isa;
 mod linear_attention;
 pub mod math;
 mod matrix;
@@ -58,6 +60,7 @@ pub use bf16::Bf16Kernel;
 pub use extension::FusedOps;
 pub use heads::Mixing;
 pub use host::ndarray_f32_values;
+pub use isa::HostIsa;
 pub use linear_attention::FeatureMap;
 pub use warm::warm;
 

@@ -17,16 +17,23 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use burn::tensor::Device;
 
-use crate::is_host;
+use crate::{HostIsa, is_host};
 
 /// Runs `f` with the current rayon pool's other workers spinning for work instead of sleeping
 /// (see the module docs) when `device` is one of the CPU backends the host kernels run on;
 /// `f`'s result. On other devices `f` just runs: the threads would only wait for the device.
 /// Inside another warm closure on the same thread (a training step's forward passes) `f` just
 /// runs too: the workers are awake already.
+///
+/// The first call on a CPU backend also settles [`HostIsa::chosen`], which says on stderr when
+/// the kernels run narrower code than the CPU has.
 pub fn warm<R>(device: &Device, f: impl FnOnce() -> R) -> R {
+    let host = is_host(device);
+    if host {
+        HostIsa::chosen();
+    }
     let others = rayon::current_num_threads().saturating_sub(1);
-    if others == 0 || !is_host(device) || WARM.get() {
+    if others == 0 || !host || WARM.get() {
         return f();
     }
     let done = AtomicBool::new(false);
