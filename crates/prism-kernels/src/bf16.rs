@@ -3,13 +3,14 @@
 //! Both operands are rounded to bf16 (to nearest, ties to even) and their products summed in
 //! f32, as AVX512-BF16's `vdpbf16ps` computes them: the product of two bf16 values is exact
 //! in f32, so the result differs from the f32 product of the rounded operands only in the
-//! order of the f32 sums. Three kernels compute it, chosen at run time
-//! ([`Bf16Kernel::chosen`]): AMX's `tdpbf16ps` on tiles where the CPU has AMX-BF16 and Linux
-//! grants the tiles, `vdpbf16ps` where it has AVX512-BF16 (two products per f32 lane and
-//! instruction, half the bytes per operand), and elsewhere the rounded operands' f32 product
-//! through `gemm`, which gives the same values at f32's speed.
+//! order of the f32 sums. Three kernels compute it: AMX's `tdpbf16ps` on tiles where the CPU
+//! has AMX-BF16 and Linux grants the tiles, `vdpbf16ps` where it has AVX512-BF16 (two products
+//! per f32 lane and instruction, half the bytes per operand), and on every CPU the rounded
+//! operands' f32 product through `gemm`, which gives the same values at f32's speed. The
+//! fastest of those the CPU runs is timed once per process ([`Bf16Kernel::chosen`]).
 
 use std::sync::OnceLock;
+use std::time::{Duration, Instant};
 
 use rayon::prelude::*;
 
@@ -29,28 +30,100 @@ pub enum Bf16Kernel {
 }
 
 impl Bf16Kernel {
-    /// The fastest kernel this CPU runs.
-    pub fn detect() -> Self {
-        [Self::Amx, Self::Avx512Bf16]
-            .into_iter()
-            .find(|k| k.runs_here())
-            .unwrap_or(Self::Rounded)
-    }
+    /// Every kernel, in order of preference: the hardware's bf16 products first.
+    const ALL: [Self; 3] = [Self::Amx, Self::Avx512Bf16, Self::Rounded];
 
-    /// [`Bf16Kernel::detect`], once per process; the first call on a CPU without AVX512-BF16
-    /// says on stderr that bf16 products run no faster than f32 there.
+    /// The kernel this process uses, chosen once: the one `PRISM_BF16_KERNEL` names (`amx`,
+    /// `avx512bf16` or `rounded`) if this CPU runs it, else [`Bf16Kernel::fastest`]. When the
+    /// choice is [`Bf16Kernel::Rounded`], the first call says on stderr that bf16 products run
+    /// no faster than f32 here.
     pub fn chosen() -> Self {
         static CHOSEN: OnceLock<Bf16Kernel> = OnceLock::new();
         *CHOSEN.get_or_init(|| {
-            let kernel = Self::detect();
+            let kernel = std::env::var("PRISM_BF16_KERNEL")
+                .ok()
+                .and_then(|name| {
+                    Self::named(&name)
+                        .map_err(|why| eprintln!("prism: {why}; choosing by measurement"))
+                        .ok()
+                })
+                .unwrap_or_else(Self::fastest);
             if kernel == Self::Rounded {
                 eprintln!(
-                    "prism: this CPU has no AVX512-BF16: bf16 matrix products run as f32 \
-                     products of bf16-rounded operands (the same values, no faster than f32)"
+                    "prism: bf16 matrix products run here as f32 products of bf16-rounded \
+                     operands (the same values, no faster than f32): this CPU has no bf16 \
+                     product that beats them"
                 );
             }
             kernel
         })
+    }
+
+    /// The kernel `name` names, if this CPU runs it; else why not.
+    pub fn named(name: &str) -> Result<Self, String> {
+        let kernel = match name {
+            "amx" => Self::Amx,
+            "avx512bf16" => Self::Avx512Bf16,
+            "rounded" => Self::Rounded,
+            _ => {
+                return Err(format!(
+                    "PRISM_BF16_KERNEL={name} is not one of amx, avx512bf16, rounded"
+                ));
+            }
+        };
+        if kernel.runs_here() {
+            Ok(kernel)
+        } else {
+            Err(format!(
+                "PRISM_BF16_KERNEL={name}: this CPU does not run it"
+            ))
+        }
+    }
+
+    /// The fastest kernel this CPU runs, timed on one product of the backbone's shape (the
+    /// `qkv` projection at 128 px: 512 x 256 x 768), each kernel's best of a few runs. The
+    /// hardware's products are not always the fastest: on an Intel Xeon with AVX512-BF16 and
+    /// no AMX, `vdpbf16ps` ran the model's products slower than `gemm`'s f32 products of the
+    /// rounded operands, where on an AMD Zen 4 it ran them faster (BENCHMARKS.md).
+    pub fn fastest() -> Self {
+        let candidates: Vec<Self> = Self::ALL.into_iter().filter(|k| k.runs_here()).collect();
+        if candidates.len() == 1 {
+            return candidates[0];
+        }
+        let (a, b) = (vec![0.5; 512 * 256], vec![0.25; 256 * 768]);
+        let (a, b) = (View::rows(&a, 512, 256), View::rows(&b, 256, 768));
+        let timed: Vec<(Self, Duration)> = candidates
+            .into_iter()
+            .map(|kernel| {
+                let best = (0..5)
+                    .map(|_| {
+                        let start = Instant::now();
+                        std::hint::black_box(matmul(kernel, a, b));
+                        start.elapsed()
+                    })
+                    .skip(1)
+                    .min()
+                    .expect("four timed runs");
+                (kernel, best)
+            })
+            .collect();
+        Self::preferred(&timed)
+    }
+
+    /// Of timed kernels, in order of preference, the first within 10% of the fastest time:
+    /// near-ties go to the hardware's products, so that a noisy measurement rarely changes
+    /// the choice (and with it the order of the sums) from one run to the next.
+    fn preferred(timed: &[(Self, Duration)]) -> Self {
+        let best = timed
+            .iter()
+            .map(|t| t.1)
+            .min()
+            .expect("at least one kernel");
+        timed
+            .iter()
+            .find(|t| t.1.as_secs_f64() <= 1.1 * best.as_secs_f64())
+            .expect("the fastest is within 10% of itself")
+            .0
     }
 
     /// Whether this CPU (and, for AMX, the operating system) runs the kernel.
@@ -119,22 +192,21 @@ fn rows_per_task(m: usize, strip: usize, most: usize) -> usize {
         .min(most)
 }
 
-/// The rounded operands' f32 product through `gemm`.
+/// The rounded operands' f32 product through `gemm`. Each operand is rounded in its own layout
+/// (the span of values its view covers, one pass over contiguous memory on both threads, into
+/// memory not zeroed first), so a transposed operand stays transposed for `gemm`.
 fn rounded(a: View<'_>, b: View<'_>) -> Vec<f32> {
     let round = |v: View<'_>| -> Vec<f32> {
-        let mut out = vec![0.0; v.rows * v.cols];
-        out.par_chunks_mut(v.cols).enumerate().for_each(|(r, row)| {
-            for (c, x) in row.iter_mut().enumerate() {
-                *x = round_bf16(v.at(r, c));
-            }
-        });
+        let span = &v.data[..=(v.rows - 1) * v.row_stride + (v.cols - 1) * v.col_stride];
+        let mut out = Vec::new();
+        span.par_iter()
+            .with_min_len(1 << 14)
+            .map(|&x| round_bf16(x))
+            .collect_into_vec(&mut out);
         out
     };
     let (ra, rb) = (round(a), round(b));
-    matrix::product(
-        View::rows(&ra, a.rows, a.cols),
-        View::rows(&rb, b.rows, b.cols),
-    )
+    matrix::product(View { data: &ra, ..a }, View { data: &rb, ..b })
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -445,6 +517,54 @@ mod tests {
             }
         }
         c
+    }
+
+    /// The fastest kernel wins unless one earlier in the order of preference is within 10%
+    /// of it.
+    #[test]
+    fn the_choice_is_the_fastest_or_a_preferred_near_tie() {
+        let ms = Duration::from_micros;
+        use Bf16Kernel::{Amx, Avx512Bf16, Rounded};
+        let cases = [
+            (vec![(Avx512Bf16, ms(1300)), (Rounded, ms(1000))], Rounded),
+            (
+                vec![(Avx512Bf16, ms(1090)), (Rounded, ms(1000))],
+                Avx512Bf16,
+            ),
+            (vec![(Avx512Bf16, ms(700)), (Rounded, ms(1000))], Avx512Bf16),
+            (
+                vec![(Amx, ms(1200)), (Avx512Bf16, ms(1050)), (Rounded, ms(1000))],
+                Avx512Bf16,
+            ),
+            (vec![(Rounded, ms(1000))], Rounded),
+        ];
+        for (timed, want) in cases {
+            assert_eq!(Bf16Kernel::preferred(&timed), want, "{timed:?}");
+        }
+    }
+
+    /// The measured choice is a kernel this CPU runs, and `PRISM_BF16_KERNEL`'s names map to
+    /// the kernels this CPU runs; other names, and kernels it does not run, are refused.
+    #[test]
+    fn the_measured_and_the_named_kernels_run_here() {
+        let fastest = Bf16Kernel::fastest();
+        eprintln!("fastest bf16 kernel here: {fastest:?}");
+        assert!(fastest.runs_here());
+        for (name, kernel) in [
+            ("amx", Bf16Kernel::Amx),
+            ("avx512bf16", Bf16Kernel::Avx512Bf16),
+            ("rounded", Bf16Kernel::Rounded),
+        ] {
+            match Bf16Kernel::named(name) {
+                Ok(named) => assert_eq!(named, kernel),
+                Err(why) => {
+                    assert!(!kernel.runs_here(), "{name}: {why}");
+                    assert!(why.contains("does not run"), "{why}");
+                }
+            }
+        }
+        let err = Bf16Kernel::named("fp8").unwrap_err();
+        assert!(err.contains("not one of amx, avx512bf16, rounded"), "{err}");
     }
 
     /// Every kernel this CPU runs, on sizes that leave partial tiles, strips and panels, more
