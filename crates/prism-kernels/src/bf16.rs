@@ -192,6 +192,10 @@ fn rows_per_task(m: usize, strip: usize, most: usize) -> usize {
         .min(most)
 }
 
+/// Values per task of [`rounded`]'s rounding pass: at least enough that a task costs more
+/// than handing it to another thread.
+const ROUND_TASK: usize = 1 << 14;
+
 /// The rounded operands' f32 product through `gemm`. Each operand is rounded in its own layout
 /// (the span of values its view covers, one pass over contiguous memory on both threads, into
 /// memory not zeroed first), so a transposed operand stays transposed for `gemm`.
@@ -200,7 +204,7 @@ fn rounded(a: View<'_>, b: View<'_>) -> Vec<f32> {
         let span = &v.data[..=(v.rows - 1) * v.row_stride + (v.cols - 1) * v.col_stride];
         let mut out = Vec::new();
         span.par_iter()
-            .with_min_len(1 << 14)
+            .with_min_len(ROUND_TASK)
             .map(|&x| round_bf16(x))
             .collect_into_vec(&mut out);
         out
