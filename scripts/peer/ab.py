@@ -6,7 +6,8 @@
 Runs `BUILD bench BENCH_ARGS --json F` for every build in turn, ROUNDS times, so that a slow
 spell of the host falls on every build alike. Prints, per bench row, each build's median over
 the rounds and the last build's ratio to the first (of the medians, and of the fastest runs),
-then every run's time.
+then every run's time, and each build's median CPU steal (the hypervisor's share of the CPU
+time while its rows were timed, `cpu_steal` of the bench JSON; builds before it have none).
 """
 import json
 import os
@@ -21,7 +22,7 @@ def main():
         sys.exit(__doc__)
     split = sys.argv.index("--")
     rounds, builds, args = int(sys.argv[1]), sys.argv[2:split], sys.argv[split + 1:]
-    times = {}
+    times, steal = {}, {}
     for _ in range(rounds):
         for build in builds:
             with tempfile.NamedTemporaryFile(suffix=".json") as f:
@@ -29,6 +30,8 @@ def main():
                                capture_output=True)
                 for row in json.load(open(f.name))["rows"]:
                     times.setdefault((row["model"], row["res"]), {}).setdefault(build, []).append(row["ms"])
+                    if row.get("cpu_steal") is not None:
+                        steal.setdefault(build, []).append(row["cpu_steal"])
     names = [os.path.basename(b) for b in builds]
     print("| row | " + " | ".join(names) + " | last / first (medians) | last / first (fastest) |")
     print("|---|" + "---:|" * (len(builds) + 2))
@@ -39,6 +42,9 @@ def main():
               + f" | {medians[-1] / medians[0]:.2f}x | {fastest:.2f}x |")
     for (model, res), runs in times.items():
         print(model, res, {os.path.basename(b): [round(t, 1) for t in runs[b]] for b in builds})
+    print("CPU steal (median of the rows): " + ", ".join(
+        f"{os.path.basename(b)} {100 * statistics.median(steal[b]):.1f}%" if b in steal
+        else f"{os.path.basename(b)} n/a" for b in builds))
 
 
 if __name__ == "__main__":

@@ -12,6 +12,10 @@ usage (from the repository root, with a Python that has torch):
 
 `--precision bf16` runs prism's blocks with `--precision bf16` and PyTorch under bf16
 autocast (`torch_backbone.py --dtype bf16`).
+
+Under the table it prints each side's CPU steal: the share of the machine's CPU time the
+hypervisor ran something else while that side ran (Linux's /proc/stat). A ratio measured while
+one side had a few percent of steal and the other none says more about the host than the code.
 """
 import argparse
 import json
@@ -36,6 +40,24 @@ def backbone_shapes(config):
     return ["--width", str(model["width"]), "--heads", str(model["heads"]),
             "--patch", str(model["patch_size"]), "--blocks", str(blocks),
             "--group", str(distill["group_size"]), "--mlp-ratio", str(model["mlp_ratio"])]
+
+
+def cpu_times():
+    """(total, steal) clock ticks of all CPUs from /proc/stat's aggregate line, or None."""
+    try:
+        with open("/proc/stat") as f:
+            fields = [int(v) for v in f.readline().split()[1:9]]
+    except (OSError, ValueError):
+        return None
+    return (sum(fields), fields[7]) if len(fields) == 8 else None
+
+
+def steal_since(before):
+    """The share of the CPU time stolen since the `cpu_times()` reading `before`, as "x.y%"."""
+    after = cpu_times()
+    if before is None or after is None or after[0] <= before[0]:
+        return "n/a"
+    return f"{100 * (after[1] - before[1]) / (after[0] - before[0]):.1f}%"
 
 
 def run_command(cmd, env=None, timeout=None, log=None):
@@ -120,11 +142,14 @@ def main():
     args = ap.parse_args()
     if not os.path.isfile(args.prism):
         sys.exit(f"{args.prism}: no such file (build it with `cargo build --release`)")
+    before = cpu_times()
     prism = run_prism(args.prism, CONFIG, args.res, args.backend, args.warmup, args.iters,
                       args.train_steps, extra=["--precision", args.precision])
+    prism_steal, before = steal_since(before), cpu_times()
     torch_rows = run_torch(backbone_shapes(CONFIG), args.res, args.threads, args.warmup,
                            args.iters, TRAIN_RES, args.train_steps,
                            extra=["--dtype", args.precision])
+    torch_steal = steal_since(before)
     rows = []
     print("| what | res | prism ms | PyTorch ms | prism / PyTorch |")
     print("|---|---|---|---|---|")
@@ -135,9 +160,11 @@ def main():
         rows.append({"what": key[0], "res": key[1], "prism_ms": ours, "torch_ms": theirs,
                      "ratio": ours / theirs})
         print(f"| {key[0]} | {key[1]} | {ours:.1f} | {theirs:.1f} | {ours / theirs:.2f}x |")
+    print(f"CPU steal: prism {prism_steal}, PyTorch {torch_steal}")
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"rows": rows}, f, indent=1)
+            json.dump({"rows": rows, "cpu_steal": {"prism": prism_steal, "torch": torch_steal}},
+                      f, indent=1)
 
 
 if __name__ == "__main__":

@@ -10,6 +10,7 @@ use anyhow::Context;
 use clap::{Args, Subcommand};
 use prism_core::BackendKind;
 use prism_core::reads::{geometry_host_reads, host_reads};
+use prism_core::steal::{StealProbe, percent};
 use prism_data::DatasetReader;
 use prism_model::{
     AttentionKind, BenchOptions, BenchRow, MemoryProbe, Precision, bench_forward, load_config,
@@ -72,11 +73,13 @@ struct TableArgs {
     #[command(flatten)]
     data: DataArgs,
     /// Also write `{"rows": [{"model", "res", "tokens", "ms", "fps", "peak_mem_bytes",
-    /// "host_reads", "geometry_host_reads"}]}` to
+    /// "host_reads", "geometry_host_reads", "cpu_steal"}]}` to
     /// this file (the training step is the row `train_step`, `fps` its steps per second).
     /// `peak_mem_bytes` is the peak of the timed runs: the memory pools' bytes on GPU
     /// backends, the heap's growth above its size before the runs on the CPU ones (for the
-    /// training step, the whole short run).
+    /// training step, the whole short run). `cpu_steal` is the share of the machine's CPU
+    /// time the hypervisor ran something else while the row was timed (null where not
+    /// counted): a row with a high one is slower than its code.
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
 }
@@ -168,9 +171,10 @@ struct ModelBenchArgs {
     #[arg(long, default_value_t = 10)]
     iters: usize,
     /// Also write `{"rows": [{"model", "res", "tokens", "ms", "fps", "peak_mem_bytes",
-    /// "host_reads", "geometry_host_reads"}]}` to
+    /// "host_reads", "geometry_host_reads", "cpu_steal"}]}` to
     /// this file (`peak_mem_bytes`: the timed runs' peak, the memory pools' bytes on GPU
-    /// backends, the heap's growth above its size before the runs on the CPU ones).
+    /// backends, the heap's growth above its size before the runs on the CPU ones;
+    /// `cpu_steal`: the hypervisor's share of the CPU time while the row was timed).
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
 }
@@ -229,10 +233,7 @@ impl ModelBenchArgs {
             }
             runs.push((name, config, resolutions));
         }
-        println!(
-            "{:<16} {:>6} {:>7} {:>10} {:>8} {:>12} {:>7} {:>9}",
-            "model", "res", "tokens", "ms/frame", "fps", "peak_mem", "reads", "geometry"
-        );
+        print_header();
         let mut rows = Vec::new();
         for (name, config, resolutions) in runs {
             device.seed(0);
@@ -264,11 +265,27 @@ fn write_json(path: &Path, rows: &[BenchRow]) -> anyhow::Result<()> {
         .with_context(|| format!("cannot write {}", path.display()))
 }
 
-/// Prints one row of the table `model res tokens ms/frame fps peak_mem reads geometry` (the
-/// last two: host reads per frame or step, all and the geometry operations').
+/// The columns of [`print_row`].
+const COLUMNS: [&str; 9] = [
+    "model", "res", "tokens", "ms/frame", "fps", "peak_mem", "reads", "geometry", "steal",
+];
+
+/// Prints the header of the table of [`print_row`].
+fn print_header() {
+    let c = COLUMNS;
+    println!(
+        "{:<16} {:>6} {:>7} {:>10} {:>8} {:>12} {:>7} {:>9} {:>6}",
+        c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8]
+    );
+}
+
+/// Prints one row of the table `model res tokens ms/frame fps peak_mem reads geometry steal`
+/// (`reads` and `geometry`: host reads per frame or step, all and the geometry operations';
+/// `steal`: the share of the CPU time the hypervisor ran something else while the row was
+/// timed, [`prism_core::steal`]).
 fn print_row(row: &BenchRow) {
     println!(
-        "{:<16} {:>6} {:>7} {:>10.2} {:>8.2} {:>12} {:>7.1} {:>9.1}",
+        "{:<16} {:>6} {:>7} {:>10.2} {:>8.2} {:>12} {:>7.1} {:>9.1} {:>6}",
         row.model,
         row.res,
         row.tokens,
@@ -279,7 +296,8 @@ fn print_row(row: &BenchRow) {
             b as f64 / 1048576.0
         )),
         row.host_reads,
-        row.geometry_host_reads
+        row.geometry_host_reads,
+        percent(row.cpu_steal)
     );
 }
 
@@ -343,10 +361,7 @@ impl TableArgs {
             device_name(&device),
             self.precision
         );
-        println!(
-            "{:<16} {:>6} {:>7} {:>10} {:>8} {:>12} {:>7} {:>9}",
-            "model", "res", "tokens", "ms/frame", "fps", "peak_mem", "reads", "geometry"
-        );
+        print_header();
         let mut rows = Vec::new();
         for name in &self.models {
             let kinds = match name.as_str() {
@@ -391,6 +406,7 @@ impl TableArgs {
         };
         let probe = MemoryProbe::start(&self.backend.device()?);
         let reads = (host_reads(), geometry_host_reads());
+        let steal = StealProbe::start();
         let result = train(&config, &TeacherTask::default(), &options);
         let per_step = |now: u64, then: u64| (now - then) as f64 / steps as f64;
         let (all_reads, geometry_reads) = (
@@ -419,6 +435,7 @@ impl TableArgs {
             peak_mem_bytes: peak,
             host_reads: all_reads,
             geometry_host_reads: geometry_reads,
+            cpu_steal: steal.share(),
         })
     }
 }

@@ -88,7 +88,17 @@ fn bench_times_teacher_student_linear_and_the_training_step() {
         let all = row["host_reads"].as_f64().expect("reads counted");
         // At least the frame (or the step's logged losses) is read back.
         assert!(all > 0.0 && all >= reads, "{row}");
+        // The hypervisor's share of the CPU time, where a clock tick passed while timing.
+        assert!(
+            row["cpu_steal"]
+                .as_f64()
+                .is_none_or(|s| (0.0..=1.0).contains(&s)),
+            "{row}"
+        );
     }
+    // The training run lasts many clock ticks: Linux's counters give its share.
+    let steal = rows[9]["cpu_steal"].as_f64().expect("steal counted");
+    assert!((0.0..=1.0).contains(&steal), "{steal}");
     // The training run holds the model, its optimizer state and a batch's graph: more than
     // one inference forward pass at the same size.
     let peak = |i: usize| rows[i]["peak_mem_bytes"].as_u64().unwrap();

@@ -155,7 +155,8 @@ fn quickstart_fast_runs_end_to_end() {
 }
 
 /// The phase table is printed with every phase, and its JSON holds non-negative seconds that
-/// add up to no more than the wall time (per model, and for the whole quick start).
+/// add up to no more than the wall time (per model, and for the whole quick start), and the
+/// run's CPU steal share.
 fn assert_phase_timings(stdout: &str, json: &std::path::Path) {
     assert!(
         stdout.contains("| phase | teacher (s) | student (s) | total (s) |"),
@@ -220,6 +221,10 @@ fn assert_phase_timings(stdout: &str, json: &std::path::Path) {
         covered <= wall + 1e-9,
         "{covered} s of phases > {wall} s wall"
     );
+    // The hypervisor's share of the CPU time, counted by Linux over the whole run.
+    let steal = phases["cpu_steal"].as_f64().expect("steal counted");
+    assert!((0.0..=1.0).contains(&steal), "{steal}");
+    assert!(stdout.contains(", CPU steal "), "{stdout}");
 }
 
 /// The numbers of the table row of `stdout` that starts with `prefix` (its `-` cells skipped).

@@ -1,6 +1,6 @@
 //! The ground every prism crate stands on: cameras and Plücker rays, the paper's viewing
-//! protocol, the run-time backend choice, the count of host reads, the phase timings, atomic
-//! file writes and image conversion.
+//! protocol, the run-time backend choice, the count of host reads, the phase timings, the
+//! hypervisor's steal share of a timed stretch, atomic file writes and image conversion.
 //!
 //! Conventions (shared by every crate of the workspace): metres, world Y-up, subjects stand on
 //! `y = 0` facing +Z; OpenCV cameras (x right, y down, looking along +z) given by pixel
@@ -19,6 +19,7 @@ pub mod protocol;
 pub mod rays;
 pub mod reads;
 pub mod served;
+pub mod steal;
 
 pub use backend::{BackendError, BackendKind};
 pub use camera::{Camera, Intrinsics};

@@ -15,6 +15,7 @@ use std::time::Instant;
 
 use prism_core::BackendKind;
 use prism_core::phases::{Phase, PhaseTimes, phase_totals, timed};
+use prism_core::steal::{StealProbe, percent};
 use prism_losses::{NO_VALUE, ScoreTable};
 use serde_json::{Map, Value, json};
 
@@ -264,6 +265,10 @@ pub struct QuickstartReport {
     pub student: QuickstartModel,
     /// Wall-clock seconds of the whole quickstart.
     pub wall_seconds: f64,
+    /// The share of the machine's CPU time the hypervisor ran something else during it
+    /// ([`prism_core::steal`]; `None` where not counted): a wall time measured with a high one
+    /// is longer than the code's.
+    pub cpu_steal: Option<f64>,
 }
 
 /// Runs the quickstart on `options.data`: teacher, student (through `student_job`), both
@@ -280,7 +285,7 @@ pub fn quickstart(
     options: &PipelineOptions,
     student_job: StudentJob<'_>,
 ) -> Result<QuickstartReport> {
-    let start = Instant::now();
+    let (start, steal) = (Instant::now(), StealProbe::start());
     let data_dir = options.data.clone();
     let eval = EvaluateOptions {
         views: plan.eval_views,
@@ -346,6 +351,7 @@ pub fn quickstart(
         teacher,
         student,
         wall_seconds: start.elapsed().as_secs_f64(),
+        cpu_steal: steal.share(),
     })
 }
 
@@ -385,9 +391,10 @@ pub fn quickstart_table(report: &QuickstartReport) -> String {
     }
     let _ = writeln!(
         out,
-        "dataset {}, wall time {:.1} min",
+        "dataset {}, wall time {:.1} min, CPU steal {}",
         report.data_dir.display(),
-        report.wall_seconds / 60.0
+        report.wall_seconds / 60.0,
+        percent(report.cpu_steal)
     );
     out
 }
@@ -425,7 +432,8 @@ pub fn phase_table(report: &QuickstartReport, dataset_seconds: f64) -> String {
     out
 }
 
-/// The phase table as JSON: `dataset_seconds`, `wall_seconds` (the whole quick start's) and per
+/// The phase table as JSON: `dataset_seconds`, `wall_seconds` (the whole quick start's),
+/// `cpu_steal` (its [`QuickstartReport::cpu_steal`], null where not counted) and per
 /// model (`teacher`, `student`) the seconds of each row of [`ModelPhases::rows`] and its
 /// `wall_seconds`.
 pub fn phases_json(report: &QuickstartReport, dataset_seconds: f64) -> Value {
@@ -441,6 +449,7 @@ pub fn phases_json(report: &QuickstartReport, dataset_seconds: f64) -> Value {
     json!({
         "dataset_seconds": dataset_seconds,
         "wall_seconds": dataset_seconds + report.wall_seconds,
+        "cpu_steal": report.cpu_steal,
         "teacher": model(&report.teacher.phases),
         "student": model(&report.student.phases),
     })

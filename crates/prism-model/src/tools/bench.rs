@@ -10,6 +10,7 @@ use burn::tensor::{Device, Distribution, Tensor};
 use glam::Vec3;
 use prism_core::rays::plucker_rays;
 use prism_core::reads::{geometry_host_reads, host_reads};
+use prism_core::steal::StealProbe;
 use prism_core::{Camera, Intrinsics};
 use serde::Serialize;
 
@@ -57,6 +58,10 @@ pub struct BenchRow {
     /// The part of `host_reads` made by the geometry operations: 0 where they run on the
     /// device.
     pub geometry_host_reads: f64,
+    /// The share of the machine's CPU time the hypervisor ran something else during the
+    /// timed runs ([`prism_core::steal`]; `None` where it is not counted): a row timed while
+    /// it was high is slower than its code.
+    pub cpu_steal: Option<f64>,
 }
 
 /// How to time.
@@ -101,6 +106,7 @@ pub fn bench_forward(
     }
     let mut probe = MemoryProbe::start(device);
     let reads = (host_reads(), geometry_host_reads());
+    let steal = StealProbe::start();
     let mut times: Vec<f64> = (0..options.iters.max(1))
         .map(|_| {
             let start = Instant::now();
@@ -127,6 +133,7 @@ pub fn bench_forward(
         peak_mem_bytes: probe.peak_bytes(),
         host_reads: all_reads,
         geometry_host_reads: geometry_reads,
+        cpu_steal: steal.share(),
     }
 }
 
