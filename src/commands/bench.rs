@@ -265,17 +265,11 @@ fn write_json(path: &Path, rows: &[BenchRow]) -> anyhow::Result<()> {
         .with_context(|| format!("cannot write {}", path.display()))
 }
 
-/// The columns of [`print_row`].
-const COLUMNS: [&str; 9] = [
-    "model", "res", "tokens", "ms/frame", "fps", "peak_mem", "reads", "geometry", "steal",
-];
-
 /// Prints the header of the table of [`print_row`].
 fn print_header() {
-    let c = COLUMNS;
     println!(
         "{:<16} {:>6} {:>7} {:>10} {:>8} {:>12} {:>7} {:>9} {:>6}",
-        c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8]
+        "model", "res", "tokens", "ms/frame", "fps", "peak_mem", "reads", "geometry", "steal"
     );
 }
 
