@@ -78,8 +78,9 @@ struct TableArgs {
     /// `peak_mem_bytes` is the peak of the timed runs: the memory pools' bytes on GPU
     /// backends, the heap's growth above its size before the runs on the CPU ones (for the
     /// training step, the whole short run). `cpu_steal` is the share of the machine's CPU
-    /// time the hypervisor ran something else while the row was timed (null where not
-    /// counted): a row with a high one is slower than its code.
+    /// time the hypervisor ran something else while the row was timed (for the training step,
+    /// the whole short run; null where not counted): a row with a high one is slower than its
+    /// code.
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
 }
