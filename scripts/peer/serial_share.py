@@ -40,7 +40,9 @@ def read(path):
         line = line.rstrip("\n")
         if not line.strip():
             current = None
-        elif not line[0].isspace():
+        elif not line.startswith("\t"):
+            # A sample's first line: the thread id (right-aligned, so perhaps indented) and
+            # the time; its frames follow, one per line, each indented by a tab.
             tid, time = line.split()[:2]
             current = (float(time.rstrip(":")), [])
             samples[int(tid)].append(current)

@@ -14,6 +14,15 @@ pub fn gelu(x: &mut [f32]) {
     x.par_chunks_mut(CHUNK).for_each(gelu_chunk);
 }
 
+/// `GELU(x)` into a new buffer, in one parallel pass that reads `x` and writes the result: for
+/// an input that must be kept (autodiff keeps it for the reverse pass), where copying it first
+/// and then working in place would be a serial copy and a second pass.
+pub fn gelu_of(x: &[f32]) -> Vec<f32> {
+    filled(x.len(), CHUNK, |i, y| {
+        gelu_chunk_into(&x[i * CHUNK..i * CHUNK + y.len()], y);
+    })
+}
+
 /// `dx = grad * GELU'(x)`.
 pub fn gelu_backward(x: &[f32], grad: &[f32]) -> Vec<f32> {
     assert_eq!(
@@ -31,6 +40,13 @@ pub fn gelu_backward(x: &[f32], grad: &[f32]) -> Vec<f32> {
 fn gelu_chunk(x: &mut [f32]) {
     for x in x.iter_mut() {
         *x = math::gelu(*x);
+    }
+}
+
+#[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]
+fn gelu_chunk_into(x: &[f32], y: &mut [f32]) {
+    for (y, &x) in y.iter_mut().zip(x) {
+        *y = math::gelu(x);
     }
 }
 

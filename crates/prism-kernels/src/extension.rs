@@ -89,9 +89,10 @@ pub trait FusedOps: Backend {
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
 }
 
-/// GELU through the host kernel.
+/// GELU through the host kernel: in place where the input is not kept, else into a new
+/// buffer in one pass.
 fn gelu<B: HostTensors>(x: FloatTensor<B>) -> FloatTensor<B> {
-    B::update(x, elementwise::gelu)
+    B::map(x, elementwise::gelu, elementwise::gelu_of)
 }
 
 /// `grad * GELU'(x)` through the host kernel.

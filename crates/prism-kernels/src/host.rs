@@ -48,6 +48,27 @@ pub trait HostTensors: Backend {
     fn update(tensor: FloatTensor<Self>, f: impl FnOnce(&mut [f32])) -> FloatTensor<Self> {
         updated_copy::<Self>(tensor, f)
     }
+
+    /// `tensor` through an element-wise op: `in_place` on its values where the backend can
+    /// lend them mutably (as [`HostTensors::update`]), else `copied` from them into a new
+    /// buffer, in one pass that reads the values and writes the result.
+    fn map(
+        tensor: FloatTensor<Self>,
+        _in_place: impl FnOnce(&mut [f32]),
+        copied: impl FnOnce(&[f32]) -> Vec<f32>,
+    ) -> FloatTensor<Self> {
+        mapped_copy::<Self>(tensor, copied)
+    }
+}
+
+/// A new tensor holding `copied` of `tensor`'s values.
+fn mapped_copy<B: HostTensors>(
+    tensor: FloatTensor<B>,
+    copied: impl FnOnce(&[f32]) -> Vec<f32>,
+) -> FloatTensor<B> {
+    let (shape, device) = (tensor.shape(), tensor.device());
+    let values = copied(&B::values(tensor));
+    B::tensor(values, shape, &device)
 }
 
 /// A new tensor holding `f` applied to a copy of `tensor`'s values.
@@ -94,6 +115,21 @@ impl HostTensors for Flex {
             return tensor;
         }
         updated_copy::<Self>(tensor, f)
+    }
+
+    fn map(
+        mut tensor: FloatTensor<Self>,
+        in_place: impl FnOnce(&mut [f32]),
+        copied: impl FnOnce(&[f32]) -> Vec<f32>,
+    ) -> FloatTensor<Self> {
+        assert_eq!(tensor.dtype(), DType::F32, "fused kernels take f32 tensors");
+        if let Some((start, end)) = tensor.layout().contiguous_offsets()
+            && let Some(values) = tensor.try_storage_mut::<f32>()
+        {
+            in_place(&mut values[start..end]);
+            return tensor;
+        }
+        mapped_copy::<Self>(tensor, copied)
     }
 }
 

@@ -108,23 +108,27 @@ fn gelu_matches_burn() {
         |[x]| exact(x * 3.0),
         2e-6,
     );
+    // One chunk of the host kernel, and several with a partial last one (a shared input is
+    // read into a new buffer chunk by chunk).
     for (backend, device) in devices() {
-        let x = random([5, 40], &device) * 3.0;
-        let want = unfused::gelu(x.clone());
-        // A shared input is left as it was; one no one else holds may be overwritten.
-        let before = x.to_data();
-        let shared = gelu(x.clone());
-        assert_eq!(
-            x.to_data(),
-            before,
-            "gelu on {backend} changed its shared input"
-        );
-        for (case, y) in [("shared", shared), ("owned", gelu(x))] {
-            let err = max_diff(y, want.clone());
-            assert!(
-                err < 2e-6,
-                "gelu on {backend} ({case} input): differs from Burn's by {err}"
+        for shape in [[5, 40], [5, 8003]] {
+            let x = random(shape, &device) * 3.0;
+            let want = unfused::gelu(x.clone());
+            // A shared input is left as it was; one no one else holds may be overwritten.
+            let before = x.to_data();
+            let shared = gelu(x.clone());
+            assert_eq!(
+                x.to_data(),
+                before,
+                "gelu on {backend} {shape:?} changed its shared input"
             );
+            for (case, y) in [("shared", shared), ("owned", gelu(x))] {
+                let err = max_diff(y, want.clone());
+                assert!(
+                    err < 2e-6,
+                    "gelu on {backend} {shape:?} ({case} input): differs from Burn's by {err}"
+                );
+            }
         }
     }
 }

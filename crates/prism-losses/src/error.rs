@@ -88,6 +88,9 @@ pub enum LossError {
     /// The objective was asked for an LPIPS term without an LPIPS network.
     #[error("the loss weights ask for LPIPS (lpips = {0}) but no LPIPS network was given")]
     LpipsRequired(f64),
+    /// The objective was given an image to score without the target view.
+    #[error("the objective has an image to score but no target view (LossInputs::with_target)")]
+    NoTarget,
     /// The objective was evaluated with no term at all.
     #[error("the objective has no term: give at least one of nvs, gs, pts, smplx, distill")]
     NoTerms,

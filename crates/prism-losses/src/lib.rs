@@ -36,8 +36,8 @@ pub use error::LossError;
 pub use image_files::{FolderScores, Scores, load_image, score_files, score_paths};
 pub use lpips::{LPIPS_MIN_SIDE, Lpips, LpipsReference};
 pub use objective::{
-    CentreInputs, ImagePair, LossInputs, LossTerms, LossWeights, Objective, OpacityInputs,
-    PointInputs, SmplxInputs, holes_loss, mse_loss,
+    CentreInputs, LossInputs, LossTerms, LossWeights, Objective, OpacityInputs, PointInputs,
+    SmplxInputs, holes_loss, mse_loss,
 };
 pub use opacity::{opacity_loss, pixel_rows};
 pub use point::{POINT_LOSS_SCALES, PointLoss, point_loss};

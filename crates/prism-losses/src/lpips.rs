@@ -153,7 +153,7 @@ impl Lpips {
     /// # Panics
     /// When the shapes differ, there are not 3 channels, or a side is below 31.
     pub fn forward(&self, pred: Tensor<4>, gt: Tensor<4>) -> Tensor<1> {
-        self.features_of(gt).forward(pred)
+        self.loss_reference(gt).forward(pred)
     }
 
     /// The unit-normalised AlexNet features of a batch of ground-truth images `gt`
@@ -164,11 +164,12 @@ impl Lpips {
     /// # Panics
     /// When there are not 3 channels or a side is below 31.
     pub fn reference(&self, gt: Tensor<4>) -> LpipsReference<'_> {
-        timed(Phase::Lpips, || self.features_of(gt))
+        timed(Phase::Lpips, || self.loss_reference(gt))
     }
 
-    /// [`Lpips::reference`] without the timing (the training loss's path).
-    fn features_of(&self, gt: Tensor<4>) -> LpipsReference<'_> {
+    /// [`Lpips::reference`] without the timing: the training loss's path, whose time belongs
+    /// to its step. The objective scores both of a step's images against one target's features.
+    pub fn loss_reference(&self, gt: Tensor<4>) -> LpipsReference<'_> {
         let dims = gt.dims();
         let [_, channels, height, width] = dims;
         assert_eq!(channels, 3, "LPIPS: images must have 3 channels");

@@ -94,15 +94,6 @@ pub struct CentreInputs {
     pub mask: Tensor<3>,
 }
 
-/// A predicted image batch and its target, `[B, 3, H, W]` in [0, 1].
-#[derive(Clone, Debug)]
-pub struct ImagePair {
-    /// The prediction.
-    pub pred: Tensor<4>,
-    /// The ground truth.
-    pub gt: Tensor<4>,
-}
-
 /// Inputs of `L_pts` (see [`point_loss`]).
 #[derive(Clone, Debug)]
 pub struct PointInputs {
@@ -130,10 +121,12 @@ pub struct SmplxInputs {
 /// What one training step has to supervise; absent parts are not computed.
 #[derive(Clone, Debug, Default)]
 pub struct LossInputs {
-    /// NVS decoder output and target view.
-    pub nvs: Option<ImagePair>,
-    /// 3DGS head render and target view.
-    pub gs: Option<ImagePair>,
+    /// The target view both images are scored against, `[B, 3, H, W]` in [0, 1].
+    pub target: Option<Tensor<4>>,
+    /// The NVS decoder's output, `[B, 3, H, W]`.
+    pub nvs: Option<Tensor<4>>,
+    /// The 3DGS head's render, `[B, 3, H, W]`.
+    pub gs: Option<Tensor<4>>,
     /// 3DGS head opacities and the source mask.
     pub gs_opacity: Option<OpacityInputs>,
     /// 3DGS head centres and the true points.
@@ -154,15 +147,22 @@ impl LossInputs {
         Self::default()
     }
 
-    /// With the NVS decoder's prediction and the target.
-    pub fn with_nvs(mut self, pred: Tensor<4>, gt: Tensor<4>) -> Self {
-        self.nvs = Some(ImagePair { pred, gt });
+    /// With the target view (what [`LossInputs::with_nvs`] and [`LossInputs::with_gs`]
+    /// predict). One target for both images, so that LPIPS computes its features once.
+    pub fn with_target(mut self, gt: Tensor<4>) -> Self {
+        self.target = Some(gt);
         self
     }
 
-    /// With the 3DGS render and the target.
-    pub fn with_gs(mut self, pred: Tensor<4>, gt: Tensor<4>) -> Self {
-        self.gs = Some(ImagePair { pred, gt });
+    /// With the NVS decoder's prediction of the target.
+    pub fn with_nvs(mut self, pred: Tensor<4>) -> Self {
+        self.nvs = Some(pred);
+        self
+    }
+
+    /// With the 3DGS head's render of the target.
+    pub fn with_gs(mut self, pred: Tensor<4>) -> Self {
+        self.gs = Some(pred);
         self
     }
 
@@ -285,8 +285,11 @@ impl Objective {
     /// l_smplx L_smplx + l_distill L_distill + l_gs_opacity L_opacity + l_gs_centres L_centres
     /// + l_gs_spread L_spread`. MSE and LPIPS are means over the batch.
     ///
+    /// The target's LPIPS features are computed once, for both images.
+    ///
     /// # Errors
-    /// [`LossError::NoTerms`] when nothing was computed.
+    /// [`LossError::NoTerms`] when nothing was computed; [`LossError::NoTarget`] when an
+    /// image is weighted without a target.
     pub fn forward(&self, inputs: LossInputs) -> Result<LossTerms, LossError> {
         let w = &self.weights;
         let mut terms: Vec<(&'static str, Tensor<1>)> = Vec::new();
@@ -299,10 +302,12 @@ impl Objective {
             });
         };
 
-        if let (Some(pair), Some(weights)) = (&inputs.nvs, inputs.nvs_holes)
+        let target = inputs.target;
+        let target_of = || target.clone().ok_or(LossError::NoTarget);
+        if let (Some(pred), Some(weights)) = (&inputs.nvs, inputs.nvs_holes)
             && w.nvs_holes != 0.0
         {
-            let value = holes_loss(pair.pred.clone(), pair.gt.clone(), weights);
+            let value = holes_loss(pred.clone(), target_of()?, weights);
             add(w.nvs_holes, &value);
             terms.push(("nvs_holes", value));
         }
@@ -324,15 +329,20 @@ impl Objective {
                 inputs.gs,
             ),
         ];
-        for (mse_name, lpips_name, laplacian_name, weight, laplacian, pair) in images {
-            let Some(ImagePair { pred, gt }) = pair.filter(|_| weight != 0.0) else {
+        // The target's LPIPS features, computed for the first image scored and kept for the
+        // second.
+        let mut reference = None;
+        for (mse_name, lpips_name, laplacian_name, weight, laplacian, pred) in images {
+            let Some(pred) = pred.filter(|_| weight != 0.0) else {
                 continue;
             };
+            let gt = target_of()?;
             let mse = mse_loss(pred.clone(), gt.clone());
             add(weight, &mse);
             terms.push((mse_name, mse));
             if let Some(lpips) = self.lpips.as_ref().filter(|_| w.lpips != 0.0) {
-                let value = lpips.forward(pred.clone(), gt.clone()).mean();
+                let reference = reference.get_or_insert_with(|| lpips.loss_reference(gt.clone()));
+                let value = reference.forward(pred.clone()).mean();
                 add(weight * w.lpips, &value);
                 terms.push((lpips_name, value));
             }
@@ -467,8 +477,9 @@ mod tests {
         // The objective adds it to both images' losses with their weights, when weighted.
         let (pred, gt) = (image(with_spot(&truth, w)), image(truth.clone()));
         let inputs = LossInputs::new()
-            .with_nvs(pred.clone(), gt.clone())
-            .with_gs(pred, gt);
+            .with_target(gt)
+            .with_nvs(pred.clone())
+            .with_gs(pred);
         let weights = |l: f64| {
             LossWeights::new()
                 .with_lpips(0.0)
@@ -527,7 +538,10 @@ mod tests {
         // Without holes the term is 0; the objective computes it only when weighted.
         let none = holes_loss(pred.clone(), gt.clone(), w.clone().zeros_like());
         assert_eq!(none.into_scalar::<f64>(), 0.0);
-        let inputs = LossInputs::new().with_nvs(pred, gt).with_nvs_holes(w);
+        let inputs = LossInputs::new()
+            .with_target(gt)
+            .with_nvs(pred)
+            .with_nvs_holes(w);
         let weights = |holes: f64| LossWeights::new().with_lpips(0.0).with_nvs_holes(holes);
         let off = Objective::new(weights(0.0), None)
             .unwrap()

@@ -76,8 +76,9 @@ impl TeacherLoss {
     /// the NVS image, and where the model has them the 3DGS render, the point map with its
     /// confidence and the SMPL-X parameters against the fit.
     pub fn inputs(&self, model: &Prism, batch: &PrismBatch, out: &PrismOutput) -> LossInputs {
-        let target = batch.target_image.clone();
-        let mut inputs = LossInputs::new().with_nvs(out.image.clone(), target.clone());
+        let mut inputs = LossInputs::new()
+            .with_target(batch.target_image.clone())
+            .with_nvs(out.image.clone());
         if let Some(gaussians) = &out.gaussians {
             if self.objective.weights().nvs_holes != 0.0 {
                 // The holes of I_gs: the target's foreground its render leaves uncovered.
@@ -87,7 +88,7 @@ impl TeacherLoss {
             }
             let mask = pixel_rows(batch.source_mask.clone());
             inputs = inputs
-                .with_gs(gaussians.image.clone(), target)
+                .with_gs(gaussians.image.clone())
                 .with_gs_opacity(OpacityInputs {
                     logits: gaussians.gaussians.opacity_logits.clone(),
                     mask: mask.clone(),

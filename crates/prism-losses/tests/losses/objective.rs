@@ -148,8 +148,9 @@ fn objective_total_is_the_weighted_sum_of_the_reported_terms() {
         has_fit: None,
     };
     let inputs = LossInputs::new()
-        .with_nvs(img(1), img(2))
-        .with_gs(img(3), img(2))
+        .with_target(img(2))
+        .with_nvs(img(1))
+        .with_gs(img(3))
         .with_pts(pts.clone())
         .with_smplx(smplx.clone());
     let terms = objective.forward(inputs).unwrap();
@@ -207,7 +208,7 @@ fn objective_skips_zero_weights_and_reports_what_is_missing() {
         )
     };
     let terms = objective
-        .forward(LossInputs::new().with_nvs(img(1), img(2)))
+        .forward(LossInputs::new().with_target(img(2)).with_nvs(img(1)))
         .unwrap();
     assert_eq!(terms.names(), vec!["nvs_mse", "total"]);
     assert!((scalar(&terms.total) - scalar(&mse_loss(img(1), img(2)))).abs() < 1e-7);
@@ -219,6 +220,10 @@ fn objective_skips_zero_weights_and_reports_what_is_missing() {
     assert!(matches!(
         objective.forward(LossInputs::new()),
         Err(LossError::NoTerms)
+    ));
+    assert!(matches!(
+        objective.forward(LossInputs::new().with_nvs(img(1))),
+        Err(LossError::NoTarget)
     ));
     let student = vec![Tensor::<3>::ones([1, 2, 2], &device)];
     let teacher = vec![Tensor::<3>::zeros([1, 2, 2], &device)];
