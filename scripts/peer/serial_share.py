@@ -53,7 +53,15 @@ def read(path):
 
 
 def waiting(frames):
-    return any(w in f for f in frames[:12] for w in WAITING)
+    """Whether a sample's thread waits for work: a wait frame on its stack below (leafwards of)
+    any rayon job it runs. With full (DWARF) stacks, a job the spinning worker picked up sits
+    above its wait loop's frame, and is work."""
+    for frame in frames:
+        if "rayon_core::job" in frame and "execute" in frame:
+            return False
+        if any(w in frame for w in WAITING):
+            return True
+    return False
 
 
 def kind(leaf):
