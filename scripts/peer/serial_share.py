@@ -64,6 +64,16 @@ def waiting(frames):
     return False
 
 
+def busy_and_other(samples, path):
+    """The two most sampled threads of `read`'s samples: the busy one (which waits least) and
+    the other."""
+    threads = sorted(samples, key=lambda t: -len(samples[t]))[:2]
+    if len(threads) < 2:
+        raise SystemExit(f"{path}: fewer than two threads were sampled")
+    busy, other = sorted(threads, key=lambda t: sum(waiting(s[1]) for s in samples[t]))
+    return busy, other
+
+
 def kind(leaf):
     for needles, name in KINDS:
         if any(n in leaf for n in needles):
@@ -78,10 +88,7 @@ def main():
                         help="share of the run's start to leave out (default 0.35)")
     args = parser.parse_args()
     samples = read(args.samples)
-    threads = sorted(samples, key=lambda t: -len(samples[t]))[:2]
-    if len(threads) < 2:
-        raise SystemExit(f"{args.samples}: fewer than two threads were sampled")
-    busy, other = sorted(threads, key=lambda t: sum(waiting(s[1]) for s in samples[t]))
+    busy, other = busy_and_other(samples, args.samples)
     start, end = samples[busy][0][0], samples[busy][-1][0]
     cut = start + args.skip * (end - start)
     other_times = [s[0] for s in samples[other]]

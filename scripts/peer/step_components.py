@@ -23,7 +23,7 @@ import re
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from serial_share import read, waiting  # noqa: E402
+from serial_share import busy_and_other, read  # noqa: E402
 
 # Forward-pass parts, by a frame on the stack; the first match wins.
 FORWARD = [
@@ -86,10 +86,7 @@ def main():
     parser.add_argument("--rows", type=int, default=25, help="table rows to print")
     args = parser.parse_args()
     samples = read(args.stacks)
-    threads = sorted(samples, key=lambda t: -len(samples[t]))[:2]
-    if len(threads) < 2:
-        raise SystemExit(f"{args.stacks}: fewer than two threads were sampled")
-    busy = min(threads, key=lambda t: sum(waiting(s[1]) for s in samples[t]))
+    busy, _ = busy_and_other(samples, args.stacks)
     start, end = samples[busy][0][0], samples[busy][-1][0]
     cut = start + args.skip * (end - start)
     parts = collections.Counter(

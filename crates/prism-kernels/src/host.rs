@@ -107,11 +107,8 @@ impl HostTensors for Flex {
     }
 
     fn update(mut tensor: FloatTensor<Self>, f: impl FnOnce(&mut [f32])) -> FloatTensor<Self> {
-        assert_eq!(tensor.dtype(), DType::F32, "fused kernels take f32 tensors");
-        if let Some((start, end)) = tensor.layout().contiguous_offsets()
-            && let Some(values) = tensor.try_storage_mut::<f32>()
-        {
-            f(&mut values[start..end]);
+        if let Some(values) = lent_values(&mut tensor) {
+            f(values);
             return tensor;
         }
         updated_copy::<Self>(tensor, f)
@@ -122,15 +119,20 @@ impl HostTensors for Flex {
         in_place: impl FnOnce(&mut [f32]),
         copied: impl FnOnce(&[f32]) -> Vec<f32>,
     ) -> FloatTensor<Self> {
-        assert_eq!(tensor.dtype(), DType::F32, "fused kernels take f32 tensors");
-        if let Some((start, end)) = tensor.layout().contiguous_offsets()
-            && let Some(values) = tensor.try_storage_mut::<f32>()
-        {
-            in_place(&mut values[start..end]);
+        if let Some(values) = lent_values(&mut tensor) {
+            in_place(values);
             return tensor;
         }
         mapped_copy::<Self>(tensor, copied)
     }
+}
+
+/// The values of an f32 flex tensor, lent mutably when it is contiguous and no one else holds
+/// its buffer.
+fn lent_values(tensor: &mut FlexTensor) -> Option<&mut [f32]> {
+    assert_eq!(tensor.dtype(), DType::F32, "fused kernels take f32 tensors");
+    let (start, end) = tensor.layout().contiguous_offsets()?;
+    Some(&mut tensor.try_storage_mut::<f32>()?[start..end])
 }
 
 /// The values of `tensor`, row-major, when it is an f32 ndarray tensor (`B` the ndarray
