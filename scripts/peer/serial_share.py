@@ -1,10 +1,13 @@
 #!/usr/bin/env python3
 """How much of a 2-thread prism run one thread does alone, and in what.
 
-    perf record -F 1999 -g -o perf.data prism bench --config configs/small.toml \\
-        --models teacher --iters 1 --warmup 0 --train-steps 40
-    perf script -i perf.data -F tid,time,ip,sym > samples.txt
+    perf record -F 149 --call-graph dwarf,12288 -o perf.data prism bench \\
+        --config configs/small.toml --models teacher --iters 1 --warmup 0 --train-steps 40
+    perf script -i perf.data --no-inline -F tid,time,ip,sym > samples.txt
     python3 scripts/peer/serial_share.py samples.txt [--skip 0.35]
+
+The binary keeps no frame pointers, so `perf record -g` gives unreliable stacks; DWARF
+unwinding gives whole ones, and `--no-inline` keeps `perf script` to seconds.
 
 Inside `prism_kernels::warm` rayon's idle worker loops in `sched_yield` instead of sleeping,
 so it is sampled while it waits. A sample of the busy thread counts as serial when the other

@@ -76,10 +76,11 @@ fn updated_copy<B: HostTensors>(
     tensor: FloatTensor<B>,
     f: impl FnOnce(&mut [f32]),
 ) -> FloatTensor<B> {
-    let (shape, device) = (tensor.shape(), tensor.device());
-    let mut values = B::values(tensor).to_vec();
-    f(&mut values);
-    B::tensor(values, shape, &device)
+    mapped_copy::<B>(tensor, |values| {
+        let mut values = values.to_vec();
+        f(&mut values);
+        values
+    })
 }
 
 impl HostTensors for Flex {
