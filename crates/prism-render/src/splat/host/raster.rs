@@ -182,7 +182,7 @@ fn floor_near(x: f32) -> f32 {
 
 /// The Gaussian's alpha at offset `(dx, dy)` from its centre, with `exp(-power)` and the
 /// unclamped `o exp(-power)`. The alpha is 0 where the pixel is skipped (outside 3 sigma, below
-/// 1/255, or a NaN power). Branch-free, so that [`SpanAlphas::of`] computes a row of them as
+/// 1/255, or a NaN power). Branch-free, so that [`RowAlphas::of`] computes a row of them as
 /// vectors.
 #[inline(always)]
 fn alpha_at(p: &Projected, dx: f32, dy: f32) -> (f32, f32, f32) {
@@ -198,28 +198,39 @@ fn alpha_at(p: &Projected, dx: f32, dy: f32) -> (f32, f32, f32) {
     (if drawn { alpha } else { 0.0 }, g, raw)
 }
 
-/// [`alpha_at`] for the pixels of one tile row from the span's first column on: lane `i` is
-/// column `first + i`. Lanes past the span are computed and not read.
-struct SpanAlphas {
+/// [`alpha_at`] for the pixels of one tile row: lane `i` is the tile's column `i`. Lanes outside
+/// the row's span `first..=last` are 0 (not drawn), so that a whole row is updated as vectors.
+struct RowAlphas {
     alpha: [f32; TILE_SIZE],
     gauss: [f32; TILE_SIZE],
     raw: [f32; TILE_SIZE],
 }
 
-impl SpanAlphas {
-    /// `dx` is the first column's offset from the Gaussian's centre.
+impl RowAlphas {
+    /// `dx` is the offset of column `first`'s centre from the Gaussian's centre; column `i`'s
+    /// offset is `dx + (i - first)`, so that every lane of the span sees the same offset in the
+    /// forward and the reverse pass.
     #[inline(always)]
-    fn of(p: &Projected, dx: f32, dy: f32) -> Self {
+    fn of(p: &Projected, (first, last): (usize, usize), dx: f32, dy: f32) -> Self {
         let mut s = Self {
             alpha: [0.0; TILE_SIZE],
             gauss: [0.0; TILE_SIZE],
             raw: [0.0; TILE_SIZE],
         };
         for i in 0..TILE_SIZE {
-            (s.alpha[i], s.gauss[i], s.raw[i]) = alpha_at(p, dx + i as f32, dy);
+            let (alpha, gauss, raw) = alpha_at(p, dx + lane_offset(i, first), dy);
+            let in_span = first <= i && i <= last;
+            s.alpha[i] = if in_span { alpha } else { 0.0 };
+            (s.gauss[i], s.raw[i]) = (gauss, raw);
         }
         s
     }
+}
+
+/// `i - first` as a float (exact for tile columns).
+#[inline(always)]
+fn lane_offset(i: usize, first: usize) -> f32 {
+    i as f32 - first as f32
 }
 
 /// The result of compositing one camera.
@@ -234,12 +245,23 @@ pub struct Composited {
     pub contributors: Vec<u32>,
 }
 
-/// One tile's compositing state, pixel-major: pixel `i`'s channels are `acc[i * ch..][..ch]`,
-/// so that the per-pixel channel loops read and write one contiguous run.
+/// Pixels of a full tile.
+const TILE_PIXELS: usize = TILE_SIZE * TILE_SIZE;
+
+/// Where channel `c` of the tile's row `ly` starts in a channel-major tile buffer
+/// (`[channels][TILE_SIZE][TILE_SIZE]`, full rows even in a tile cut by the image border), so
+/// that a row of one channel is one vector of lanes.
+#[inline(always)]
+fn row_start(c: usize, ly: usize) -> usize {
+    (c * TILE_SIZE + ly) * TILE_SIZE
+}
+
+/// One tile's compositing state, in full `TILE_SIZE`-wide rows: the channels channel-major
+/// ([`row_start`]), transmittance and contributor count row-major.
 struct TileOut {
     acc: Vec<f32>,
-    t: Vec<f32>,
-    n: Vec<u32>,
+    t: [f32; TILE_PIXELS],
+    n: [u32; TILE_PIXELS],
 }
 
 /// Gaussian `j`'s composited channels: its `C` features, then `1` (for the alpha) and its depth.
@@ -281,14 +303,12 @@ pub fn composite(
         let (x0, y0, tw, th) = tile_rect(tile, view);
         for ly in 0..th {
             let row = (y0 + ly) * w + x0;
-            let src = ly * tw;
+            let src = ly * TILE_SIZE;
             out.transmittance[row..row + tw].copy_from_slice(&o.t[src..src + tw]);
             out.contributors[row..row + tw].copy_from_slice(&o.n[src..src + tw]);
-            for lx in 0..tw {
-                let pixel = &o.acc[(src + lx) * ch..(src + lx + 1) * ch];
-                for (c, &v) in pixel.iter().enumerate() {
-                    out.image[c * w * h + row + lx] = v;
-                }
+            for c in 0..ch {
+                let src = row_start(c, ly);
+                out.image[c * w * h + row..][..tw].copy_from_slice(&o.acc[src..src + tw]);
             }
         }
     }
@@ -305,20 +325,22 @@ struct Scene<'a> {
 }
 
 /// One tile of [`composite`]: its Gaussians (`list`, front to back) composited into its
-/// pixels. Compiled for AVX-512 and AVX2 too, chosen at run time, so that a row's alphas
-/// ([`SpanAlphas`]) run as vectors.
+/// pixels, a tile row at a time as vectors of lanes ([`RowAlphas`]). Compiled for AVX-512 and
+/// AVX2 too, chosen at run time.
 #[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]
 fn composite_tile(scene: &Scene<'_>, tile: usize, list: &[u32]) -> TileOut {
     let (view, channels) = (scene.view, scene.channels);
     let ch = channels + 2;
     let rect = tile_rect(tile, view);
     let (x0, y0, tw, th) = rect;
-    let np = tw * th;
-    let mut acc = vec![0.0f32; np * ch];
-    let mut t = vec![1.0f32; np];
-    let mut n = vec![0u32; np];
-    let mut done = vec![false; np];
-    let mut live = np;
+    let mut out = TileOut {
+        acc: vec![0.0f32; ch * TILE_PIXELS],
+        t: [1.0; TILE_PIXELS],
+        n: [0; TILE_PIXELS],
+    };
+    // 1 for a pixel still compositing, 0 once it stopped: multiplies the alphas, as a vector.
+    let mut open = [1.0f32; TILE_PIXELS];
+    let mut live = tw * th;
     let mut fe = vec![0.0f32; ch];
     for (k, &j) in list.iter().enumerate() {
         if live == 0 {
@@ -335,31 +357,42 @@ fn composite_tile(scene: &Scene<'_>, tile: usize, list: &[u32]) -> TileOut {
         let rows = RowSpans::of(p);
         for ly in ly0..=ly1 {
             let dy = (y0 + ly) as f32 + 0.5 - p.v;
-            let Some((sx0, sx1)) = rows.span(dy, x0, lx0, lx1) else {
+            let Some(span) = rows.span(dy, x0, lx0, lx1) else {
                 continue;
             };
-            let alphas = SpanAlphas::of(p, (x0 + sx0) as f32 + 0.5 - p.u, dy);
-            for (lx, &alpha) in (sx0..=sx1).zip(&alphas.alpha) {
-                let idx = ly * tw + lx;
-                if alpha == 0.0 || done[idx] {
-                    continue;
+            let dx = (x0 + span.0) as f32 + 0.5 - p.u;
+            let alphas = RowAlphas::of(p, span, dx, dy);
+            let base = ly * TILE_SIZE;
+            let (t, n) = (
+                &mut out.t[base..][..TILE_SIZE],
+                &mut out.n[base..][..TILE_SIZE],
+            );
+            let open = &mut open[base..][..TILE_SIZE];
+            // The weights `alpha T`, 0 where the pixel is not drawn.
+            let mut weight = [0.0f32; TILE_SIZE];
+            let mut stopped = 0;
+            for i in 0..TILE_SIZE {
+                let alpha = alphas.alpha[i] * open[i];
+                let next = t[i] * (1.0 - alpha);
+                let stop = alpha != 0.0 && next < MIN_TRANSMITTANCE;
+                let drawn = alpha != 0.0 && !stop;
+                weight[i] = if drawn { alpha * t[i] } else { 0.0 };
+                t[i] = if drawn { next } else { t[i] };
+                n[i] = if drawn { k as u32 + 1 } else { n[i] };
+                open[i] = if stop { 0.0 } else { open[i] };
+                stopped += usize::from(stop);
+            }
+            live -= stopped;
+            // A zero weight adds nothing (the features are finite).
+            for (c, &f) in fe.iter().enumerate() {
+                let acc = &mut out.acc[row_start(c, ly)..][..TILE_SIZE];
+                for i in 0..TILE_SIZE {
+                    acc[i] += weight[i] * f;
                 }
-                let next = t[idx] * (1.0 - alpha);
-                if next < MIN_TRANSMITTANCE {
-                    done[idx] = true;
-                    live -= 1;
-                    continue;
-                }
-                let w = alpha * t[idx];
-                for (a, fc) in acc[idx * ch..(idx + 1) * ch].iter_mut().zip(&fe) {
-                    *a += w * fc;
-                }
-                t[idx] = next;
-                n[idx] = k as u32 + 1;
             }
         }
     }
-    TileOut { acc, t, n }
+    out
 }
 
 /// Per projected Gaussian, the number of gradient values the reverse pass accumulates:
@@ -460,15 +493,15 @@ fn backward_tile(
                 continue;
             };
             let dx0 = (x0 + sx0) as f32 + 0.5 - p.u;
-            let alphas = SpanAlphas::of(p, dx0, dy);
-            for (i, lx) in (sx0..=sx1).enumerate() {
+            let alphas = RowAlphas::of(p, (sx0, sx1), dx0, dy);
+            for lx in sx0..=sx1 {
                 let idx = ly * tw + lx;
-                let alpha = alphas.alpha[i];
+                let alpha = alphas.alpha[lx];
                 if alpha == 0.0 || k as u32 >= n[idx] {
                     continue;
                 }
-                let (gauss, raw) = (alphas.gauss[i], alphas.raw[i]);
-                let dx = dx0 + i as f32;
+                let (gauss, raw) = (alphas.gauss[lx], alphas.raw[lx]);
+                let dx = dx0 + lane_offset(lx, sx0);
                 let tk = t[idx] / (1.0 - alpha);
                 t[idx] = tk;
                 let wk = alpha * tk;
