@@ -23,6 +23,7 @@ use crate::heads::{self, Heads, Mixing};
 use crate::host::HostTensors;
 use crate::matrix::{self, View};
 use crate::norm::{self, NormKind};
+use crate::pool::{self, PoolDims};
 
 /// Fused operations of the backbone. Every method takes and returns f32 tensors.
 #[backend_extension(Autodiff, Flex, NdArray)]
@@ -76,6 +77,13 @@ pub trait FusedOps: Backend {
         bias: FloatTensor<Self>,
         stride: [usize; 2],
         padding: [usize; 2],
+    ) -> FloatTensor<Self>;
+    /// 2D max pooling of `x` `[B, C, H, W]` with a `kernel` window at `stride`, no padding,
+    /// dilation 1 (see [`pool`]).
+    fn fused_max_pool2d(
+        x: FloatTensor<Self>,
+        kernel: [usize; 2],
+        stride: [usize; 2],
     ) -> FloatTensor<Self>;
     /// One AdamW step of a parameter: `(param, moment_1, moment_2)` after `grad` (see
     /// [`adamw::step`]; the moments are ignored at `step.time == 1`). Untracked: an optimizer
@@ -375,6 +383,46 @@ fn conv_forward<B: HostTensors>(
     B::tensor(y, Shape::from(vec![d.batch, d.outputs, h, w]), &device)
 }
 
+/// The sizes of a max pooling of `x` `[B, C, H, W]`.
+fn pool_dims(x: &Shape, kernel: [usize; 2], stride: [usize; 2]) -> PoolDims {
+    assert!(
+        x.num_dims() == 4,
+        "fused max_pool2d takes x [B, C, H, W], got {x:?}"
+    );
+    PoolDims {
+        planes: x[0] * x[1],
+        size: [x[2], x[3]],
+        kernel,
+        stride,
+    }
+}
+
+/// A max pooling through the host kernel.
+fn max_pool_forward<B: HostTensors>(
+    x: FloatTensor<B>,
+    kernel: [usize; 2],
+    stride: [usize; 2],
+) -> FloatTensor<B> {
+    let (shape, device) = (x.shape(), x.device());
+    let d = pool_dims(&shape, kernel, stride);
+    let [h, w] = d
+        .output_size()
+        .expect("fused max_pool2d: the window fits the input");
+    let y = pool::forward(&B::values(x), d);
+    B::tensor(y, Shape::from(vec![shape[0], shape[1], h, w]), &device)
+}
+
+/// The input's gradient of a max pooling through the host kernel.
+fn max_pool_backward<B: HostTensors>(
+    (x, kernel, stride): (FloatTensor<B>, [usize; 2], [usize; 2]),
+    grad: FloatTensor<B>,
+) -> [FloatTensor<B>; 1] {
+    let (shape, device) = (x.shape(), x.device());
+    let d = pool_dims(&shape, kernel, stride);
+    let dx = pool::backward(&B::values(x), &B::values(grad), d);
+    [B::tensor(dx, shape, &device)]
+}
+
 /// One AdamW step through the host kernel, in place where the backend lends the parameter's and
 /// moments' values mutably (see [`HostTensors::update`]).
 fn adamw_step<B: HostTensors>(
@@ -455,6 +503,14 @@ macro_rules! host_fused_ops {
                 padding: [usize; 2],
             ) -> FloatTensor<Self> {
                 conv_forward::<Self>(x, weight, bias, stride, padding)
+            }
+
+            fn fused_max_pool2d(
+                x: FloatTensor<Self>,
+                kernel: [usize; 2],
+                stride: [usize; 2],
+            ) -> FloatTensor<Self> {
+                max_pool_forward::<Self>(x, kernel, stride)
             }
 
             fn fused_adamw(
@@ -581,6 +637,18 @@ impl<B: HostTensors> Backward<B, 3> for ConvBackward {
                 grads.register::<B>(node.id, B::tensor(values, shape, &device));
             }
         }
+    }
+}
+
+/// Backward step of [`FusedOps::fused_max_pool2d`].
+#[derive(Debug)]
+struct MaxPoolBackward;
+
+impl<B: HostTensors> Backward<B, 1> for MaxPoolBackward {
+    type State = (FloatTensor<B>, [usize; 2], [usize; 2]);
+
+    fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
+        backward_each::<B, _, 1>(ops, grads, max_pool_backward::<B>);
     }
 }
 
@@ -727,6 +795,26 @@ impl<B: HostTensors, C: CheckpointStrategy> FusedOps for Autodiff<B, C> {
             OpsKind::UnTracked(prep) => {
                 prep.finish(conv_forward::<B>(x, weight, bias, stride, padding))
             }
+        }
+    }
+
+    fn fused_max_pool2d(
+        x: FloatTensor<Self>,
+        kernel: [usize; 2],
+        stride: [usize; 2],
+    ) -> FloatTensor<Self> {
+        let nodes = [x.node()];
+        let x = x.into_primitive();
+        match MaxPoolBackward
+            .prepare::<C>(nodes)
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                let y = max_pool_forward::<B>(x.clone(), kernel, stride);
+                prep.finish((x, kernel, stride), y)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(max_pool_forward::<B>(x, kernel, stride)),
         }
     }
 

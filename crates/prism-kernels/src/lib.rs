@@ -45,6 +45,7 @@ mod linear_attention;
 pub mod math;
 mod matrix;
 mod norm;
+mod pool;
 #[cfg(test)]
 mod test_util;
 pub mod unfused;
@@ -210,6 +211,26 @@ pub fn conv2d(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
         bias.into_dispatch(),
         layer.stride,
         padding,
+    ))
+}
+
+/// 2D max pooling of `x` `[B, C, H, W]` with a `kernel` window at `stride` (no padding,
+/// dilation 1). On f32 tensors of the CPU backends: the host kernel, one autodiff node (Burn's
+/// CPU pooling works window by window, with indices even where none are wanted). Elsewhere, or
+/// where the window is larger than the input: Burn's op.
+pub fn max_pool2d(x: Tensor<4>, kernel: [usize; 2], stride: [usize; 2]) -> Tensor<4> {
+    let [_, _, h, w] = x.dims();
+    let fits = kernel[0] <= h && kernel[1] <= w && kernel.iter().chain(&stride).all(|&v| v > 0);
+    if !is_fused(&x) || !fits {
+        return burn::tensor::module::max_pool2d(
+            x,
+            burn::tensor::ops::MaxPoolOptions::new(kernel).with_stride(stride),
+        );
+    }
+    Tensor::from_dispatch(<Dispatch as FusedOps>::fused_max_pool2d(
+        x.into_dispatch(),
+        kernel,
+        stride,
     ))
 }
 

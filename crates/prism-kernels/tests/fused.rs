@@ -10,8 +10,8 @@ use burn::nn::{LinearConfig, PaddingConfig2d};
 use burn::tensor::{Device, Distribution, Tensor};
 use prism_kernels::{
     Bf16Kernel, FeatureMap, Mixing, attention, attention_bf16, conv2d, gelu, is_fused,
-    is_fused_conv2d, layer_norm, linear, matmul_bf16, matmul_left, rms_norm, self_attention,
-    unfused,
+    is_fused_conv2d, layer_norm, linear, matmul_bf16, matmul_left, max_pool2d, rms_norm,
+    self_attention, unfused,
 };
 
 fn devices() -> [(&'static str, Device); 2] {
@@ -404,6 +404,25 @@ fn conv2d_matches_burn() {
             assert!(frozen.weight.val().grad(&grads).is_none());
             grad("x (frozen layer)", x.grad(&grads), x.grad(&gb));
         }
+    }
+}
+
+#[test]
+fn max_pool2d_matches_burn() {
+    use burn::tensor::{module, ops::MaxPoolOptions};
+    // LPIPS's pools (3x3 at stride 2, odd sides leaving a column unread), and a window wider
+    // than its stride along one axis only.
+    for (shape, kernel, stride) in [
+        ([2, 3, 31, 31], [3, 3], [2, 2]),
+        ([1, 2, 9, 12], [2, 3], [2, 1]),
+    ] {
+        check::<4, 1>(
+            "max_pool2d",
+            [shape.to_vec()],
+            |[x]| max_pool2d(x, kernel, stride),
+            |[x]| module::max_pool2d(x, MaxPoolOptions::new(kernel).with_stride(stride)),
+            1e-7,
+        );
     }
 }
 

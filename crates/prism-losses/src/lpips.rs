@@ -18,11 +18,9 @@ use burn::nn::PaddingConfig2d;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::store::{ModuleSnapshot, SafetensorsStore};
 use burn::tensor::activation::relu;
-use burn::tensor::module::max_pool2d;
-use burn::tensor::ops::MaxPoolOptions;
 use burn::tensor::{Device, Tensor};
 use prism_core::phases::{Phase, timed};
-use prism_kernels::conv2d;
+use prism_kernels::{conv2d, max_pool2d};
 
 use crate::LossError;
 
@@ -212,7 +210,7 @@ impl Lpips {
 
     /// The five ReLU taps of AlexNet's feature extractor.
     fn taps(&self, x: Tensor<4>) -> [Tensor<4>; 5] {
-        let pool = |x: Tensor<4>| max_pool2d(x, MaxPoolOptions::new([3, 3]).with_stride([2, 2]));
+        let pool = |x: Tensor<4>| max_pool2d(x, [3, 3], [2, 2]);
         let t1 = relu(conv2d(&self.conv1, x));
         let t2 = relu(conv2d(&self.conv2, pool(t1.clone())));
         let t3 = relu(conv2d(&self.conv3, pool(t2.clone())));
