@@ -219,9 +219,14 @@ pub fn conv2d(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
 /// CPU pooling works window by window, with indices even where none are wanted). Elsewhere, or
 /// where the window is larger than the input: Burn's op.
 pub fn max_pool2d(x: Tensor<4>, kernel: [usize; 2], stride: [usize; 2]) -> Tensor<4> {
-    let [_, _, h, w] = x.dims();
-    let fits = kernel[0] <= h && kernel[1] <= w && kernel.iter().chain(&stride).all(|&v| v > 0);
-    if !is_fused(&x) || !fits {
+    let [b, c, h, w] = x.dims();
+    let dims = pool::PoolDims {
+        planes: b * c,
+        size: [h, w],
+        kernel,
+        stride,
+    };
+    if !is_fused(&x) || dims.output_size().is_none() {
         return burn::tensor::module::max_pool2d(
             x,
             burn::tensor::ops::MaxPoolOptions::new(kernel).with_stride(stride),
