@@ -301,4 +301,51 @@ fn main() {
     );
     println!("| point branch: whole | {whole:.2} |");
     println!("| 3DGS head: whole (projection, activations, splat) | {gs:.2} |");
+
+    // A frozen distillation teacher: the full forward pass for its hidden states, against the
+    // trunk alone (no heads), on the shipped config, taking turns.
+    let file = load_config(&args.config).expect("config");
+    let layers = file
+        .distill
+        .layer_indices(config.num_blocks())
+        .expect("distillation layers");
+    device.seed(0);
+    let teacher = config.init(&device);
+    let (mut full, mut trunk) = (Vec::new(), Vec::new());
+    for iter in 0..=args.iters {
+        let start = Instant::now();
+        let out = teacher.forward_views(
+            x.image.clone(),
+            x.source.clone(),
+            x.target.clone(),
+            &x.views,
+            &layers,
+        );
+        let _ = out.hidden.into_iter().map(Tensor::into_data).count();
+        let f = start.elapsed().as_secs_f64() * 1e3;
+        let start = Instant::now();
+        let hidden = teacher.hidden_states(
+            x.image.clone(),
+            x.source.clone(),
+            x.target.clone(),
+            &x.views,
+            &layers,
+        );
+        let _ = hidden.into_iter().map(Tensor::into_data).count();
+        let t = start.elapsed().as_secs_f64() * 1e3;
+        if iter > 0 {
+            full.push(f);
+            trunk.push(t);
+        }
+    }
+    let (full, trunk) = (median(&mut full), median(&mut trunk));
+    println!();
+    println!("A frozen teacher's hidden states {layers:?} (batch {b}, {res}x{res}, ms):");
+    println!("| path | ms |");
+    println!("|---|---|");
+    println!("| the full forward pass | {full:.2} |");
+    println!(
+        "| the trunk alone (`Prism::hidden_states`) | {trunk:.2} ({:.2}x) |",
+        trunk / full
+    );
 }

@@ -325,6 +325,34 @@ impl Prism {
         )
     }
 
+    /// The hidden states (block outputs, `[B, T, d]`) of `hidden_layers`, as
+    /// [`Prism::forward_views`] returns them for the same inputs, without the heads: the blocks
+    /// after the last layer asked for, the 3DGS head and its render, and the NVS decoder are
+    /// not run. What a frozen distillation teacher gives its student.
+    ///
+    /// # Panics
+    /// As [`Prism::forward_views`].
+    pub fn hidden_states(
+        &self,
+        source_image: Tensor<4>,
+        source_rays: Tensor<4>,
+        target_rays: Tensor<4>,
+        views: &Views,
+        hidden_layers: &[usize],
+    ) -> Vec<Tensor<3>> {
+        let device = source_image.device();
+        let inputs = TrunkInputs {
+            source_image,
+            source_rays,
+            target_rays,
+            views: Some(views),
+        };
+        let blocks = hidden_layers.iter().max().map_or(0, |&l| l + 1);
+        prism_kernels::warm(&device, || {
+            self.trunk(&inputs, hidden_layers, blocks).hidden
+        })
+    }
+
     fn forward_impl(
         &self,
         source_image: Tensor<4>,
@@ -333,14 +361,73 @@ impl Prism {
         views: Option<&Views>,
         hidden_layers: &[usize],
     ) -> PrismOutput {
+        let inputs = TrunkInputs {
+            source_image,
+            source_rays,
+            target_rays,
+            views,
+        };
+        let Trunk {
+            t_out,
+            hidden,
+            source_tokens,
+            smplx,
+            points,
+        } = self.trunk(&inputs, hidden_layers, self.num_blocks());
+        let [_, _, height, width] = inputs.target_rays.dims();
+        let total = t_out.dims()[1];
+        let target = t_out
+            .clone()
+            .narrow(1, source_tokens, total - source_tokens);
+        let gaussians = self.gs_head.as_ref().map(|head| {
+            let source = SourcePixels {
+                image: &inputs.source_image,
+                rays: &inputs.source_rays,
+                distance: points.as_ref().map(|p| p.distance.clone()),
+            };
+            head.forward(
+                t_out.clone().narrow(1, 0, source_tokens),
+                source,
+                inputs.views.expect("checked by the trunk"),
+                height,
+                width,
+            )
+        });
+        let image = self.nvs_head.forward(
+            target,
+            height,
+            width,
+            gaussians.as_ref().map(|g| g.image.clone()),
+        );
+        PrismOutput {
+            image,
+            hidden,
+            t_out,
+            source_tokens,
+            smplx,
+            points,
+            gaussians,
+        }
+    }
+
+    /// The tokens through stage I, the geometry branches and the injection, and the first
+    /// `blocks - M` blocks of stage III (`blocks` counts from the first block of stage I), with
+    /// the hidden states of `hidden_layers` (all below `blocks`).
+    fn trunk(&self, inputs: &TrunkInputs<'_>, hidden_layers: &[usize], blocks: usize) -> Trunk {
         let num_blocks = self.num_blocks();
         if let Some(bad) = hidden_layers.iter().find(|&&i| i >= num_blocks) {
             panic!("hidden layer {bad} requested from a model of {num_blocks} blocks");
         }
+        let TrunkInputs {
+            source_image,
+            source_rays,
+            target_rays,
+            views,
+        } = inputs;
         let views = match views {
             Some(views) => {
                 views.check(source_image.dims()[0]);
-                Some(views)
+                Some(*views)
             }
             None if self.has_geometry() => panic!(
                 "this model has geometry parts (SMPL-X branch, point branch or 3DGS head) that \
@@ -362,9 +449,11 @@ impl Prism {
             .unwrap_or_default();
         let wanted: Vec<usize> = hidden_layers.iter().chain(&taps).copied().collect();
         let mut hidden = HiddenStates::new(&wanted);
-        let t_in = self
-            .tokenizer
-            .forward(source_image.clone(), source_rays.clone(), target_rays);
+        let t_in = self.tokenizer.forward(
+            source_image.clone(),
+            source_rays.clone(),
+            target_rays.clone(),
+        );
         let t_mid = self.stage_one.forward(t_in.clone(), &mut hidden);
         let tapped: Vec<Tensor<3>> = taps
             .iter()
@@ -386,8 +475,8 @@ impl Prism {
             let taps: Vec<Tensor<3>> = tapped.iter().map(source_of).collect();
             branch.forward(
                 &taps,
-                &source_image,
-                &source_rays,
+                source_image,
+                source_rays,
                 views.expect("checked"),
                 grid,
                 height,
@@ -401,46 +490,39 @@ impl Prism {
             points.as_ref().map(|p| p.features.clone()),
         );
 
-        // Stage III and the heads.
-        let t_out = self
-            .stage_three
-            .forward(t_mid, self.stage_one.blocks.len(), &mut hidden);
-        let total = t_out.dims()[1];
-        let target = t_out
-            .clone()
-            .narrow(1, source_tokens, total - source_tokens);
-        let gaussians = self.gs_head.as_ref().map(|head| {
-            let source = SourcePixels {
-                image: &source_image,
-                rays: &source_rays,
-                distance: points.as_ref().map(|p| p.distance.clone()),
-            };
-            head.forward(
-                source_of(&t_out),
-                source,
-                views.expect("checked"),
-                height,
-                width,
-            )
-        });
-        let image = self.nvs_head.forward(
-            target,
-            height,
-            width,
-            gaussians.as_ref().map(|g| g.image.clone()),
-        );
+        // Stage III, as far as asked.
+        let first = self.stage_one.blocks.len();
+        let t_out =
+            self.stage_three
+                .forward(t_mid, first, blocks.saturating_sub(first), &mut hidden);
         let mut hidden = hidden.into_vec();
         hidden.truncate(hidden_layers.len());
-        PrismOutput {
-            image,
-            hidden,
+        Trunk {
             t_out,
+            hidden,
             source_tokens,
             smplx,
             points,
-            gaussians,
         }
     }
+}
+
+/// What [`Prism::trunk`] reads.
+struct TrunkInputs<'a> {
+    source_image: Tensor<4>,
+    source_rays: Tensor<4>,
+    target_rays: Tensor<4>,
+    views: Option<&'a Views>,
+}
+
+/// What [`Prism::trunk`] gives the heads.
+struct Trunk {
+    /// The output of the last block run.
+    t_out: Tensor<3>,
+    hidden: Vec<Tensor<3>>,
+    source_tokens: usize,
+    smplx: Option<SmplxOutput>,
+    points: Option<PointOutput>,
 }
 
 #[cfg(test)]
@@ -715,7 +797,7 @@ mod tests {
         let t_in = model.tokenizer.forward(image, source, target);
         let mut hidden = HiddenStates::new(&[]);
         let t_mid = model.stage_one.forward(t_in, &mut hidden);
-        let t_out = model.stage_three.forward(t_mid, 2, &mut hidden);
+        let t_out = model.stage_three.forward(t_mid, 2, usize::MAX, &mut hidden);
         let plain = model
             .nvs_head
             .forward(t_out.clone().narrow(1, 16, 16), 32, 32, None);

@@ -9,7 +9,7 @@ use burn::module::Module;
 use burn::tensor::{Device, Tensor};
 use prism_data::PrismBatch;
 use prism_losses::LossTerms;
-use prism_model::{AttentionKind, Prism};
+use prism_model::{AttentionKind, Prism, Views};
 use serde_json::{Value, json};
 
 use crate::checkpoint::{Checkpoint, check_architecture};
@@ -204,9 +204,15 @@ impl FrozenTeacher {
     /// for the student's graph).
     fn hidden(&self, batch: &PrismBatch, background: [f32; 3]) -> Vec<Tensor<3>> {
         let inner = inner_batch(batch);
+        let views = Views::of_batch(&inner, background);
         self.model
-            .forward_batch(&inner, background, &self.layers)
-            .hidden
+            .hidden_states(
+                inner.source_image,
+                inner.source_rays,
+                inner.target_rays,
+                &views,
+                &self.layers,
+            )
             .into_iter()
             .map(Tensor::from_inner)
             .collect()

@@ -138,9 +138,17 @@ pub struct StageThree {
 }
 
 impl StageThree {
-    /// `T_out` from `T'_mid` (`[B, T, d]`), recording the requested hidden states; `first` is
-    /// the global index of this stage's first block (`M`).
-    pub fn forward(&self, t_mid: Tensor<3>, first: usize, hidden: &mut HiddenStates) -> Tensor<3> {
-        run_blocks(&self.blocks, t_mid, first, hidden)
+    /// `T_out` from `T'_mid` (`[B, T, d]`) through the first `blocks` blocks (all `N` for
+    /// `T_out`; fewer where only earlier hidden states are wanted), recording the requested
+    /// hidden states; `first` is the global index of this stage's first block (`M`).
+    pub fn forward(
+        &self,
+        t_mid: Tensor<3>,
+        first: usize,
+        blocks: usize,
+        hidden: &mut HiddenStates,
+    ) -> Tensor<3> {
+        let blocks = blocks.min(self.blocks.len());
+        run_blocks(&self.blocks[..blocks], t_mid, first, hidden)
     }
 }
