@@ -326,9 +326,10 @@ impl Prism {
     }
 
     /// The hidden states (block outputs, `[B, T, d]`) of `hidden_layers`, as
-    /// [`Prism::forward_views`] returns them for the same inputs, without the heads: the blocks
-    /// after the last layer asked for, the 3DGS head and its render, and the NVS decoder are
-    /// not run. What a frozen distillation teacher gives its student.
+    /// [`Prism::forward_views`] returns them for the same inputs, without the heads: stage III's
+    /// blocks after the last layer asked for, the 3DGS head and its render, and the NVS decoder
+    /// are not run (stage I and the geometry branches always are). What a frozen distillation
+    /// teacher gives its student.
     ///
     /// # Panics
     /// As [`Prism::forward_views`].
