@@ -11,7 +11,8 @@ usage (from the repository root, with a Python that has torch):
         [--json out.json]
 
 `--precision bf16` runs prism's blocks with `--precision bf16` and PyTorch under bf16
-autocast (`torch_backbone.py --dtype bf16`).
+autocast (`torch_backbone.py --dtype bf16`). `--threads N` gives both sides N threads:
+PyTorch's intra-op threads, and prism's rayon pool (`RAYON_NUM_THREADS`).
 
 Under the table it prints each side's CPU steal: the share of the machine's CPU time the
 hypervisor ran something else while that side ran (Linux's /proc/stat). A ratio measured while
@@ -131,7 +132,9 @@ def main():
     ap.add_argument("--prism", default=os.path.join("target", "release", "prism"))
     ap.add_argument("--res", default="128,256")
     ap.add_argument("--backend", default="flex")
-    ap.add_argument("--threads", type=int, default=2, help="PyTorch's intra-op threads")
+    ap.add_argument("--threads", type=int, default=2,
+                    help="both sides' threads: PyTorch's intra-op threads, and prism's rayon "
+                         "pool (RAYON_NUM_THREADS)")
     ap.add_argument("--warmup", type=int, default=3)
     ap.add_argument("--iters", type=int, default=10)
     ap.add_argument("--train-steps", type=int, default=10,
@@ -144,7 +147,8 @@ def main():
         sys.exit(f"{args.prism}: no such file (build it with `cargo build --release`)")
     before = cpu_times()
     prism = run_prism(args.prism, CONFIG, args.res, args.backend, args.warmup, args.iters,
-                      args.train_steps, extra=["--precision", args.precision])
+                      args.train_steps, extra=["--precision", args.precision],
+                      env={**os.environ, "RAYON_NUM_THREADS": str(args.threads)})
     prism_steal, before = steal_since(before), cpu_times()
     torch_rows = run_torch(backbone_shapes(CONFIG), args.res, args.threads, args.warmup,
                            args.iters, TRAIN_RES, args.train_steps,
