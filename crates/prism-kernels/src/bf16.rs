@@ -226,6 +226,7 @@ mod avx512 {
     use rayon::prelude::*;
 
     use super::bf16_bits;
+    use crate::buffer::filled_init;
     use crate::matrix::View;
 
     /// Rows of a register tile.
@@ -402,47 +403,48 @@ mod avx512 {
         Strip::PairMajor
     }
 
-    /// `a b`, the caller having checked the CPU's features and the views.
+    /// `a b`, the caller having checked the CPU's features and the views. `b` is packed whole
+    /// first, so that each task zeroes and fills its block of rows of `c` in one pass over the
+    /// inner dimension.
     pub(super) fn matmul(a: View<'_>, b: View<'_>) -> Vec<f32> {
         let (m, k, n) = (a.rows, a.cols, b.cols);
-        let mut c = vec![0.0f32; m * n];
-        let panels = n.div_ceil(NR);
+        let panels: Vec<(usize, usize, Vec<u32>)> = (0..k)
+            .step_by(KC)
+            .map(|k0| {
+                let kc = KC.min(k - k0);
+                (k0, kc, pack_b(b, k0, kc, kc.div_ceil(2)))
+            })
+            .collect();
         let mc = super::rows_per_task(m, MR, MC);
-        for k0 in (0..k).step_by(KC) {
-            let kc = KC.min(k - k0);
-            let pairs = kc.div_ceil(2);
-            let bp = pack_b(b, k0, kc, pairs);
-            c.par_chunks_mut(mc * n)
-                .enumerate()
-                .for_each_init(Vec::new, |ap, (t, block)| {
-                    let rows = block.len() / n;
-                    let layout = pack_a(a, t * mc, rows, k0, kc, ap);
-                    for p in 0..panels {
-                        let cols = NR.min(n - p * NR);
-                        let panel = &bp[p * pairs * NR..][..pairs * NR];
-                        for s in 0..rows.div_ceil(MR) {
-                            let strip = &ap[s * pairs * MR..][..pairs * MR];
-                            let tile_rows = MR.min(rows - s * MR);
-                            let out = &mut block[s * MR * n + p * NR..];
-                            let tile = Tile {
-                                pairs,
-                                rows: tile_rows,
-                                cols,
-                                ldc: n,
-                                accumulate: k0 > 0,
-                            };
-                            // SAFETY: the caller checked the CPU's features.
-                            unsafe {
-                                match layout {
-                                    Strip::PairMajor => tile.run::<false>(strip, panel, out),
-                                    Strip::RowMajor => tile.run::<true>(strip, panel, out),
-                                }
+        filled_init(m * n, mc * n, Vec::new, |ap, t, block| {
+            let rows = block.len() / n;
+            for (k0, kc, bp) in &panels {
+                let pairs = kc.div_ceil(2);
+                let layout = pack_a(a, t * mc, rows, *k0, *kc, ap);
+                for p in 0..n.div_ceil(NR) {
+                    let cols = NR.min(n - p * NR);
+                    let panel = &bp[p * pairs * NR..][..pairs * NR];
+                    for s in 0..rows.div_ceil(MR) {
+                        let strip = &ap[s * pairs * MR..][..pairs * MR];
+                        let tile = Tile {
+                            pairs,
+                            rows: MR.min(rows - s * MR),
+                            cols,
+                            ldc: n,
+                            accumulate: *k0 > 0,
+                        };
+                        let out = &mut block[s * MR * n + p * NR..];
+                        // SAFETY: the caller checked the CPU's features.
+                        unsafe {
+                            match layout {
+                                Strip::PairMajor => tile.run::<false>(strip, panel, out),
+                                Strip::RowMajor => tile.run::<true>(strip, panel, out),
                             }
                         }
                     }
-                });
-        }
-        c
+                }
+            }
+        })
     }
 
     /// One `MR x NR` register tile of `c`.

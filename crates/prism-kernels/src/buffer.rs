@@ -41,6 +41,29 @@ pub(crate) fn filled_with<R: Send>(
     (values, results)
 }
 
+/// [`filled`] with per-thread scratch: `fill(scratch, index, chunk)` gets a value made by
+/// `init` and reused by the chunks one rayon job runs in turn (packing buffers, say).
+pub(crate) fn filled_init<T>(
+    len: usize,
+    chunk: usize,
+    init: impl Fn() -> T + Sync + Send,
+    fill: impl Fn(&mut T, usize, &mut [f32]) + Sync + Send,
+) -> Vec<f32> {
+    let mut values = Vec::with_capacity(len);
+    values.spare_capacity_mut()[..len]
+        .par_chunks_mut(chunk.max(1))
+        .enumerate()
+        .for_each_init(init, |scratch, (i, part)| {
+            part.fill(MaybeUninit::new(0.0));
+            // SAFETY: as in `filled_with`.
+            let part = unsafe { &mut *(part as *mut [MaybeUninit<f32>] as *mut [f32]) };
+            fill(scratch, i, part);
+        });
+    // SAFETY: the chunks cover `0..len`, and each was initialised above.
+    unsafe { values.set_len(len) };
+    values
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -62,5 +85,23 @@ mod tests {
         }
         let (_, firsts) = filled_with(10, 3, |i, part| (i, part.len()));
         assert_eq!(firsts, [(0, 3), (1, 3), (2, 3), (3, 1)]);
+        // The scratch is `init`'s and each chunk sees it once more than the one before it.
+        let v = filled_init(
+            10,
+            3,
+            || 0.0,
+            |seen: &mut f32, i, part| {
+                *seen += 1.0;
+                part.fill(i as f32 + 10.0 * *seen);
+            },
+        );
+        for (k, &x) in v.iter().enumerate() {
+            let (chunk, seen) = ((k / 3) as f32, (x / 10.0).floor());
+            assert_eq!(x, chunk + 10.0 * seen, "value {k}");
+            assert!(
+                (1.0..=4.0).contains(&seen),
+                "value {k}: scratch seen {seen} times"
+            );
+        }
     }
 }

@@ -14,9 +14,8 @@ use std::arch::x86_64::__cpuid_count;
 use std::marker::PhantomData;
 use std::sync::OnceLock;
 
-use rayon::prelude::*;
-
 use super::avx512::{NR, convert, pack_b, pair_rows};
+use crate::buffer::filled_init;
 use crate::matrix::View;
 
 /// Rows of a tile, and pairs of the inner dimension per tile step.
@@ -229,23 +228,23 @@ pub(crate) fn product(
     }
 }
 
-/// `a b`, the caller having checked the views and [`available`].
+/// `a b`, the caller having checked the views and [`available`]. `b` is packed whole first, so
+/// that each task zeroes and fills its block of rows of `c` in one pass over the inner
+/// dimension.
 pub(super) fn matmul(a: View<'_>, b: View<'_>) -> Vec<f32> {
     let (m, k, n) = (a.rows, a.cols, b.cols);
-    let mut c = vec![0.0f32; m * n];
+    let panels: Vec<(usize, usize, PackedB)> = (0..k)
+        .step_by(KC)
+        .map(|k0| (k0, KC.min(k - k0), PackedB::new(b, k0, KC.min(k - k0))))
+        .collect();
     let mc = super::rows_per_task(m, MR, MC);
-    for k0 in (0..k).step_by(KC) {
-        let kc = KC.min(k - k0);
-        let bp = PackedB::new(b, k0, kc);
-        c.par_chunks_mut(mc * n)
-            .enumerate()
-            .for_each_init(PackedA::default, |ap, (t, block)| {
-                ap.pack(a, t * mc, block.len() / n, k0, kc);
-                let tiles = Tiles::configure();
-                product(&tiles, ap, &bp, block, n, k0 > 0);
-            });
-    }
-    c
+    filled_init(m * n, mc * n, PackedA::default, |ap, t, block| {
+        let tiles = Tiles::configure();
+        for (k0, kc, bp) in &panels {
+            ap.pack(a, t * mc, block.len() / n, *k0, *kc);
+            product(&tiles, ap, bp, block, n, *k0 > 0);
+        }
+    })
 }
 
 /// `c (MR x NR at row stride ldc) = strip panel` over `pairs` pairs, with the tiles configured.
