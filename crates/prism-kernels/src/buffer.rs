@@ -85,7 +85,8 @@ mod tests {
         }
         let (_, firsts) = filled_with(10, 3, |i, part| (i, part.len()));
         assert_eq!(firsts, [(0, 3), (1, 3), (2, 3), (3, 1)]);
-        // The scratch is `init`'s and each chunk sees it once more than the one before it.
+        // Each chunk gets its index and a scratch made by `init`, which counts the chunks that
+        // have used it (one job may run several in turn).
         let v = filled_init(
             10,
             3,

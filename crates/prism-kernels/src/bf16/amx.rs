@@ -235,7 +235,10 @@ pub(super) fn matmul(a: View<'_>, b: View<'_>) -> Vec<f32> {
     let (m, k, n) = (a.rows, a.cols, b.cols);
     let panels: Vec<(usize, usize, PackedB)> = (0..k)
         .step_by(KC)
-        .map(|k0| (k0, KC.min(k - k0), PackedB::new(b, k0, KC.min(k - k0))))
+        .map(|k0| {
+            let kc = KC.min(k - k0);
+            (k0, kc, PackedB::new(b, k0, kc))
+        })
         .collect();
     let mc = super::rows_per_task(m, MR, MC);
     filled_init(m * n, mc * n, PackedA::default, |ap, t, block| {
