@@ -24,21 +24,7 @@ pub(crate) fn filled_with<R: Send>(
     chunk: usize,
     fill: impl Fn(usize, &mut [f32]) -> R + Sync + Send,
 ) -> (Vec<f32>, Vec<R>) {
-    let mut values = Vec::with_capacity(len);
-    let results = values.spare_capacity_mut()[..len]
-        .par_chunks_mut(chunk.max(1))
-        .enumerate()
-        .map(|(i, part)| {
-            part.fill(MaybeUninit::new(0.0));
-            // SAFETY: every element of `part` was initialised on the line above, and
-            // `MaybeUninit<f32>` has the layout of `f32`.
-            let part = unsafe { &mut *(part as *mut [MaybeUninit<f32>] as *mut [f32]) };
-            fill(i, part)
-        })
-        .collect();
-    // SAFETY: the chunks cover `0..len`, and each was initialised above.
-    unsafe { values.set_len(len) };
-    (values, results)
+    chunks_filled(len, chunk, || (), |_, i, part| fill(i, part))
 }
 
 /// [`filled`] with per-thread scratch: `fill(scratch, index, chunk)` gets a value made by
@@ -49,19 +35,32 @@ pub(crate) fn filled_init<T>(
     init: impl Fn() -> T + Sync + Send,
     fill: impl Fn(&mut T, usize, &mut [f32]) + Sync + Send,
 ) -> Vec<f32> {
+    chunks_filled(len, chunk, init, fill).0
+}
+
+/// The one mechanism behind the functions above: each chunk zeroed, then given to `fill` with
+/// the scratch of its rayon job; `fill`'s results in the chunks' order.
+fn chunks_filled<T, R: Send>(
+    len: usize,
+    chunk: usize,
+    init: impl Fn() -> T + Sync + Send,
+    fill: impl Fn(&mut T, usize, &mut [f32]) -> R + Sync + Send,
+) -> (Vec<f32>, Vec<R>) {
     let mut values = Vec::with_capacity(len);
-    values.spare_capacity_mut()[..len]
+    let results = values.spare_capacity_mut()[..len]
         .par_chunks_mut(chunk.max(1))
         .enumerate()
-        .for_each_init(init, |scratch, (i, part)| {
+        .map_init(init, |scratch, (i, part)| {
             part.fill(MaybeUninit::new(0.0));
-            // SAFETY: as in `filled_with`.
+            // SAFETY: every element of `part` was initialised on the line above, and
+            // `MaybeUninit<f32>` has the layout of `f32`.
             let part = unsafe { &mut *(part as *mut [MaybeUninit<f32>] as *mut [f32]) };
-            fill(scratch, i, part);
-        });
+            fill(scratch, i, part)
+        })
+        .collect();
     // SAFETY: the chunks cover `0..len`, and each was initialised above.
     unsafe { values.set_len(len) };
-    values
+    (values, results)
 }
 
 #[cfg(test)]
