@@ -165,21 +165,98 @@ pub fn round_bf16(x: f32) -> f32 {
 /// in f32. Panics if the views disagree or lie outside their slices, or if this CPU does not
 /// run `kernel`.
 pub(crate) fn matmul(kernel: Bf16Kernel, a: View<'_>, b: View<'_>) -> Vec<f32> {
+    product(a, &Packed::new(kernel, b))
+}
+
+/// `a b` for an operand `b` packed by [`Packed::new`]: [`matmul`] without packing `b` again.
+/// Panics if `a` lies outside its slice or its columns are not `b`'s rows.
+pub(crate) fn product(a: View<'_>, b: &Packed) -> Vec<f32> {
     assert_eq!(a.cols, b.rows, "bf16 matmul: inner sizes differ");
     a.check();
-    b.check();
-    assert!(
-        kernel.runs_here(),
-        "this CPU does not run the {kernel:?} kernel"
-    );
-    match kernel {
+    match &b.panels {
         #[cfg(target_arch = "x86_64")]
-        Bf16Kernel::Amx => amx::matmul(a, b),
+        Panels::Amx(panels) => amx::matmul(a, b.cols, panels),
         #[cfg(target_arch = "x86_64")]
-        Bf16Kernel::Avx512Bf16 => avx512::matmul(a, b),
-        #[cfg(not(target_arch = "x86_64"))]
-        Bf16Kernel::Amx | Bf16Kernel::Avx512Bf16 => unreachable!("runs on x86_64 only"),
-        Bf16Kernel::Rounded => rounded(a, b),
+        Panels::Avx512(panels) => avx512::matmul(a, b.cols, panels),
+        Panels::Rounded(rb) => {
+            let ra = rounded_span(a);
+            matrix::product(View { data: &ra, ..a }, rb.view())
+        }
+    }
+}
+
+/// An operand `b` in the layout its kernel reads, packed once so that products with a matrix
+/// used again and again (a layer's weight, in inference: [`crate::packed`]) skip the
+/// packing, which costs about as much as a small product on AMX.
+pub(crate) struct Packed {
+    /// `b`'s rows (the product's inner size) and columns.
+    rows: usize,
+    cols: usize,
+    panels: Panels,
+}
+
+/// The packed values, per kernel.
+enum Panels {
+    /// [`amx::PackedB`] per block of the inner dimension (its first row and size).
+    #[cfg(target_arch = "x86_64")]
+    Amx(Vec<(usize, usize, amx::PackedB)>),
+    /// The AVX-512 kernel's panels per block of the inner dimension (its first row and size).
+    #[cfg(target_arch = "x86_64")]
+    Avx512(Vec<(usize, usize, Vec<u32>)>),
+    /// `b` rounded to bf16 values, in its own layout, for `gemm`.
+    Rounded(RoundedB),
+}
+
+/// An operand rounded in its own layout: the span of values its view covers, and its strides.
+struct RoundedB {
+    values: Vec<f32>,
+    rows: usize,
+    cols: usize,
+    row_stride: usize,
+    col_stride: usize,
+}
+
+impl RoundedB {
+    fn view(&self) -> View<'_> {
+        View {
+            data: &self.values,
+            rows: self.rows,
+            cols: self.cols,
+            row_stride: self.row_stride,
+            col_stride: self.col_stride,
+        }
+    }
+}
+
+impl Packed {
+    /// `b` packed for `kernel`. Panics if `b` lies outside its slice, or if this CPU does not
+    /// run `kernel`.
+    pub(crate) fn new(kernel: Bf16Kernel, b: View<'_>) -> Self {
+        b.check();
+        assert!(
+            kernel.runs_here(),
+            "this CPU does not run the {kernel:?} kernel"
+        );
+        let panels = match kernel {
+            #[cfg(target_arch = "x86_64")]
+            Bf16Kernel::Amx => Panels::Amx(amx::pack(b)),
+            #[cfg(target_arch = "x86_64")]
+            Bf16Kernel::Avx512Bf16 => Panels::Avx512(avx512::pack(b)),
+            #[cfg(not(target_arch = "x86_64"))]
+            Bf16Kernel::Amx | Bf16Kernel::Avx512Bf16 => unreachable!("runs on x86_64 only"),
+            Bf16Kernel::Rounded => Panels::Rounded(RoundedB {
+                values: rounded_span(b),
+                rows: b.rows,
+                cols: b.cols,
+                row_stride: b.row_stride,
+                col_stride: b.col_stride,
+            }),
+        };
+        Self {
+            rows: b.rows,
+            cols: b.cols,
+            panels,
+        }
     }
 }
 
@@ -192,25 +269,21 @@ fn rows_per_task(m: usize, strip: usize, most: usize) -> usize {
         .min(most)
 }
 
-/// Values per task of [`rounded`]'s rounding pass: at least enough that a task costs more
-/// than handing it to another thread.
+/// Values per task of [`rounded_span`]'s pass: at least enough that a task costs more than
+/// handing it to another thread.
 const ROUND_TASK: usize = 1 << 14;
 
-/// The rounded operands' f32 product through `gemm`. Each operand is rounded in its own layout
-/// (the span of values its view covers, one pass over contiguous memory on both threads, into
-/// memory not zeroed first), so a transposed operand stays transposed for `gemm`.
-fn rounded(a: View<'_>, b: View<'_>) -> Vec<f32> {
-    let round = |v: View<'_>| -> Vec<f32> {
-        let span = &v.data[..=(v.rows - 1) * v.row_stride + (v.cols - 1) * v.col_stride];
-        let mut out = Vec::new();
-        span.par_iter()
-            .with_min_len(ROUND_TASK)
-            .map(|&x| round_bf16(x))
-            .collect_into_vec(&mut out);
-        out
-    };
-    let (ra, rb) = (round(a), round(b));
-    matrix::product(View { data: &ra, ..a }, View { data: &rb, ..b })
+/// The span of values `v` covers, rounded to bf16 values in its own layout (one pass over
+/// contiguous memory on both threads, into memory not zeroed first), so that a transposed
+/// operand stays transposed for `gemm`.
+fn rounded_span(v: View<'_>) -> Vec<f32> {
+    let span = &v.data[..=(v.rows - 1) * v.row_stride + (v.cols - 1) * v.col_stride];
+    let mut out = Vec::new();
+    span.par_iter()
+        .with_min_len(ROUND_TASK)
+        .map(|&x| round_bf16(x))
+        .collect_into_vec(&mut out);
+    out
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -403,22 +476,27 @@ mod avx512 {
         Strip::PairMajor
     }
 
-    /// `a b`, the caller having checked the CPU's features and the views. `b` is packed whole
-    /// first, so that each task zeroes and fills its block of rows of `c` in one pass over the
-    /// inner dimension.
-    pub(super) fn matmul(a: View<'_>, b: View<'_>) -> Vec<f32> {
-        let (m, k, n) = (a.rows, a.cols, b.cols);
-        let panels: Vec<(usize, usize, Vec<u32>)> = (0..k)
+    /// `b` packed whole, block by block of the inner dimension (each block's first row, size
+    /// and panels), the caller having checked the CPU's features and the view.
+    pub(super) fn pack(b: View<'_>) -> Vec<(usize, usize, Vec<u32>)> {
+        (0..b.rows)
             .step_by(KC)
             .map(|k0| {
-                let kc = KC.min(k - k0);
+                let kc = KC.min(b.rows - k0);
                 (k0, kc, pack_b(b, k0, kc, kc.div_ceil(2)))
             })
-            .collect();
+            .collect()
+    }
+
+    /// `a b` for `b` of `n` columns packed by [`pack`], the caller having checked the CPU's
+    /// features and the views. Each task zeroes and fills its block of rows of `c` in one
+    /// pass over the inner dimension.
+    pub(super) fn matmul(a: View<'_>, n: usize, panels: &[(usize, usize, Vec<u32>)]) -> Vec<f32> {
+        let m = a.rows;
         let mc = super::rows_per_task(m, MR, MC);
         filled_init(m * n, mc * n, Vec::new, |ap, t, block| {
             let rows = block.len() / n;
-            for (k0, kc, bp) in &panels {
+            for (k0, kc, bp) in panels {
                 let pairs = kc.div_ceil(2);
                 let layout = pack_a(a, t * mc, rows, *k0, *kc, ap);
                 for p in 0..n.div_ceil(NR) {

@@ -23,6 +23,7 @@ use crate::heads::{self, Heads, Mixing};
 use crate::host::HostTensors;
 use crate::matrix::{self, View};
 use crate::norm::{self, NormKind};
+use crate::packed;
 use crate::pool::{self, PoolDims};
 
 /// Fused operations of the backbone. Every method takes and returns f32 tensors.
@@ -316,16 +317,26 @@ fn product(a: View<'_>, b: View<'_>, bf16: bool) -> Vec<f32> {
     }
 }
 
-/// `a b` through the host kernel.
+/// `a b` through the host kernel. When `b` is a constant of the graph (`b_constant`: no
+/// gradient will be taken through this product) and its buffer is shared, the bf16 kernels
+/// read it packed once and kept ([`packed`]): a layer's weight in inference.
 fn matmul_forward<B: HostTensors>(
     a: FloatTensor<B>,
     b: FloatTensor<B>,
     bf16: bool,
+    b_constant: bool,
 ) -> FloatTensor<B> {
     let (a_shape, device) = (a.shape(), a.device());
     let (m, k, n) = product_dims(&a_shape, &b.shape());
+    let buffer = (bf16 && b_constant && m * k * n > 0)
+        .then(|| B::shared_buffer(&b))
+        .flatten();
     let (a, b) = (B::values(a), B::values(b));
-    let c = product(View::rows(&a, m, k), View::rows(&b, k, n), bf16);
+    let (a, b) = (View::rows(&a, m, k), View::rows(&b, k, n));
+    let c = match buffer {
+        Some(buffer) => bf16::product(a, &packed::packed(buffer, b)),
+        None => product(a, b, bf16),
+    };
     let mut shape = a_shape;
     let last = shape.num_dims() - 1;
     shape[last] = n;
@@ -492,7 +503,7 @@ macro_rules! host_fused_ops {
                 b: FloatTensor<Self>,
                 bf16: bool,
             ) -> FloatTensor<Self> {
-                matmul_forward::<Self>(a, b, bf16)
+                matmul_forward::<Self>(a, b, bf16, true)
             }
 
             fn fused_conv2d(
@@ -767,10 +778,10 @@ impl<B: HostTensors, C: CheckpointStrategy> FusedOps for Autodiff<B, C> {
             .stateful()
         {
             OpsKind::Tracked(prep) => {
-                let c = matmul_forward::<B>(a.clone(), b.clone(), bf16);
+                let c = matmul_forward::<B>(a.clone(), b.clone(), bf16, false);
                 prep.finish((a, b, bf16), c)
             }
-            OpsKind::UnTracked(prep) => prep.finish(matmul_forward::<B>(a, b, bf16)),
+            OpsKind::UnTracked(prep) => prep.finish(matmul_forward::<B>(a, b, bf16, true)),
         }
     }
 

@@ -7,6 +7,7 @@
 
 use std::any::Any;
 use std::ops::Deref;
+use std::sync::Arc;
 
 use burn::backend::flex::{FlexTensor, Layout};
 use burn::backend::ndarray::NdArrayTensor;
@@ -14,6 +15,8 @@ use burn::backend::ops::FloatTensorOps;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Backend, Flex, NdArray, TensorMetadata};
 use burn::tensor::{Bytes, DType, Shape, TensorData};
+
+use crate::packed::SharedBuffer;
 
 /// An f32 tensor's values in host memory, borrowed or owned.
 pub enum HostValues {
@@ -41,6 +44,13 @@ pub trait HostTensors: Backend {
 
     /// A tensor of `shape` holding `values` (row-major) on `device`.
     fn tensor(values: Vec<f32>, shape: Shape, device: &Self::Device) -> FloatTensor<Self>;
+
+    /// The buffer holding `tensor`'s values, where the backend shares buffers between tensors
+    /// and the tensor reads its buffer contiguously (flex); `None` elsewhere (ndarray's values
+    /// are copied out at every call).
+    fn shared_buffer(_tensor: &FloatTensor<Self>) -> Option<SharedBuffer> {
+        None
+    }
 
     /// `tensor` with `f` applied to its values (row-major), in place where the backend can
     /// lend them mutably (flex: a contiguous tensor no one else holds), else on a copy: an
@@ -105,6 +115,19 @@ impl HostTensors for Flex {
             Layout::contiguous(shape),
             DType::F32,
         )
+    }
+
+    fn shared_buffer(tensor: &FloatTensor<Self>) -> Option<SharedBuffer> {
+        if tensor.dtype() != DType::F32 {
+            return None;
+        }
+        let (start, _) = tensor.layout().contiguous_offsets()?;
+        let data = tensor.data_arc();
+        Some(SharedBuffer {
+            address: Arc::as_ptr(&data) as usize,
+            start,
+            alive: Arc::downgrade(&data),
+        })
     }
 
     fn update(mut tensor: FloatTensor<Self>, f: impl FnOnce(&mut [f32])) -> FloatTensor<Self> {

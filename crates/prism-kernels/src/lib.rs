@@ -45,6 +45,7 @@ mod linear_attention;
 pub mod math;
 mod matrix;
 mod norm;
+mod packed;
 mod pool;
 #[cfg(test)]
 mod test_util;

@@ -228,22 +228,27 @@ pub(crate) fn product(
     }
 }
 
-/// `a b`, the caller having checked the views and [`available`]. `b` is packed whole first, so
-/// that each task zeroes and fills its block of rows of `c` in one pass over the inner
-/// dimension.
-pub(super) fn matmul(a: View<'_>, b: View<'_>) -> Vec<f32> {
-    let (m, k, n) = (a.rows, a.cols, b.cols);
-    let panels: Vec<(usize, usize, PackedB)> = (0..k)
+/// `b` packed whole for the tiles, block by block of the inner dimension (each block's first
+/// row, size and panels), the caller having checked the view and [`available`].
+pub(super) fn pack(b: View<'_>) -> Vec<(usize, usize, PackedB)> {
+    (0..b.rows)
         .step_by(KC)
         .map(|k0| {
-            let kc = KC.min(k - k0);
+            let kc = KC.min(b.rows - k0);
             (k0, kc, PackedB::new(b, k0, kc))
         })
-        .collect();
+        .collect()
+}
+
+/// `a b` for `b` of `n` columns packed by [`pack`], the caller having checked the views and
+/// [`available`]. Each task zeroes and fills its block of rows of `c` in one pass over the
+/// inner dimension.
+pub(super) fn matmul(a: View<'_>, n: usize, panels: &[(usize, usize, PackedB)]) -> Vec<f32> {
+    let m = a.rows;
     let mc = super::rows_per_task(m, MR, MC);
     filled_init(m * n, mc * n, PackedA::default, |ap, t, block| {
         let tiles = Tiles::configure();
-        for (k0, kc, bp) in &panels {
+        for (k0, kc, bp) in panels {
             ap.pack(a, t * mc, block.len() / n, *k0, *kc);
             product(&tiles, ap, bp, block, n, *k0 > 0);
         }
