@@ -16,7 +16,9 @@
 //! `--precision bf16` on the CPU runs the blocks' matrix products through [`matmul_bf16`]:
 //! operands rounded to bf16, products summed in f32, with AMX's tiles or AVX512-BF16's
 //! `vdpbf16ps` where the CPU has them and they beat `gemm`'s f32 products of the rounded
-//! operands ([`Bf16Kernel`], timed once per process), forward and backward.
+//! operands ([`Bf16Kernel`], timed once per process), forward and backward. Where no gradient
+//! is taken, a flex weight's packing for those kernels is kept while its buffer lives (module
+//! `packed`), so inference packs each weight once.
 //!
 //! On the GPU backends (features `wgpu`, `cuda`) softmax attention can run flash-attention
 //! kernels in CubeCL (module `device`): forward and backward without the `T x T` scores, in
