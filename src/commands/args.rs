@@ -91,6 +91,11 @@ pub struct RunArgs {
     // Parsed in `options`, not by clap: one error line naming the entry at fault.
     #[arg(long, default_value = "1", value_name = "N|LIST")]
     pub devices: String,
+    /// On a CPU backend with one device: the shares of each step's batch computed at once on
+    /// the CPU's threads, each on its own copy of the model's graph, their gradients summed as
+    /// with several devices. 1 computes each batch whole [default: 2 on two threads or more].
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub cpu_shares: Option<u64>,
     /// The file holding the token of the servers in --devices [default: $PRISM_TOKEN].
     #[arg(long, value_name = "FILE")]
     pub token_file: Option<PathBuf>,
@@ -139,6 +144,7 @@ impl RunArgs {
             steps: self.steps,
             resume: self.resume,
             devices,
+            cpu_shares: self.cpu_shares.map(|n| n as usize),
             token,
             progress,
             lpips_weights: self.job.lpips_weights.clone(),

@@ -26,6 +26,11 @@ impl BackendKind {
     /// Every backend name, for help texts.
     pub const NAMES: [&'static str; 4] = ["ndarray", "flex", "wgpu", "cuda"];
 
+    /// Whether the backend computes on the CPU (ndarray, flex).
+    pub fn is_cpu(self) -> bool {
+        matches!(self, Self::Ndarray | Self::Flex)
+    }
+
     /// The inference device of this backend.
     ///
     /// # Errors

@@ -82,6 +82,11 @@ pub struct CheckpointState {
     pub skipped_steps: usize,
     /// Devices the run trained on.
     pub devices: usize,
+    /// Shares each step's batch was cut into: one per device, or on one CPU device those
+    /// computed at once (`--cpu-shares`). Absent from checkpoints written before it was
+    /// recorded, whose runs had one share per device.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shares: Option<usize>,
     /// Backend the run trained on.
     pub backend: String,
     /// Transformer blocks (global indices) that were newly initialised when the model was made
@@ -405,6 +410,7 @@ pub fn save_model_checkpoint(
         non_finite_in_row: 0,
         skipped_steps: 0,
         devices: 1,
+        shares: None,
         backend: backend.to_string(),
         new_blocks: new_blocks.to_vec(),
         precision: Precision::F32,

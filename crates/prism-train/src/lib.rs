@@ -89,7 +89,7 @@ pub use infer::{
 };
 pub use log::{METRICS_FILE, MetricsLog, read_metrics};
 pub use loss_scale::{LossScaleConfig, LossScaleState, LossScaler};
-pub use parallel::{DataParallel, TrainingDevice, fingerprint, training_devices};
+pub use parallel::{DataParallel, TrainingDevice, cpu_shares, fingerprint, training_devices};
 pub use plot::{PLOT_FILE, PLOT_SIZE, TrainingCurves, plot_metrics, plot_run};
 pub use predict::{Pairs, forward_pairs, inference_model, synthesise};
 pub use provenance::Provenance;

@@ -9,6 +9,13 @@
 //! (see [`TrainItem::weight`]) the sum is the gradient of the whole batch's mean loss, and the
 //! optimizer steps once on the main device (burn-train's `MultiDeviceOptim::OptimMainDevice`).
 //!
+//! On one local device of a CPU backend the batch may still be split: [`cpu_shares`] shares
+//! run at once on rayon's pool, each on its own fork of the model (a fork has its own autodiff
+//! graph), and their gradients are summed the same way. The step's kernels are parallel, but
+//! between them it has serial stretches (Burn's element-wise ops and copies, the autodiff tape,
+//! small products): about a quarter of a teacher step on two cores, while the other thread
+//! waits. With two shares one share's serial stretch runs beside the other's work.
+//!
 //! The devices may be served by other machines (`prism serve`, Burn's remote backend): the
 //! same step then forks the model to each served device and brings the gradients to the main
 //! one with Burn's server-to-server transfers. Burn 0.22 has no all-reduce across servers (see
@@ -16,12 +23,14 @@
 
 use burn::data::dataloader::{DataLoaderIterator, Progress};
 use burn::data::dataset::DatasetError;
+use burn::module::Module;
 use burn::optim::{GradientsAccumulator, GradientsParams};
 use burn::tensor::Device;
 use burn_train::TrainStep;
 use burn_train::train::{MultiDeviceStepError, MultiDevicesTrainStep};
 use prism_core::BackendKind;
 use prism_remote::{DeviceList, Fingerprint, config_digest};
+use rayon::prelude::*;
 
 use crate::config::TrainingConfig;
 use crate::error::{Result, TrainError};
@@ -83,28 +92,62 @@ pub fn fingerprint(config: &TrainingConfig) -> Fingerprint {
     Fingerprint::this_build(Some(config_digest(&model)))
 }
 
+/// The shares of each step's batch on one local device of a CPU backend, when the run does not
+/// ask for a number (`--cpu-shares`): two when rayon's pool has at least two threads, else one.
+/// On a 2-core Xeon two shares took the teacher's step to 0.91x of its time and the student's
+/// to 0.90x; four took it to 0.94x, their products being smaller (BENCHMARKS.md, issue 43's
+/// "Two shares of each batch at once").
+pub fn cpu_shares(asked: Option<usize>) -> usize {
+    asked.unwrap_or(if rayon::current_num_threads() >= 2 {
+        2
+    } else {
+        1
+    })
+}
+
 /// Runs the forward and backward passes of a step's shares on their devices.
 pub struct DataParallel {
     devices: Vec<Device>,
     names: Vec<String>,
     multi: Option<MultiDevicesTrainStep<Trainee>>,
+    /// Shares of each step's batch: one per device, or with one device, those computed at
+    /// once on rayon's pool.
+    shares: usize,
 }
 
 impl DataParallel {
-    /// Workers for `devices` (the first is the main device).
+    /// Workers for `devices` (the first is the main device). With one device, each step's
+    /// batch is cut into `shares` shares computed at once; with several, into one share per
+    /// device (`shares` is then ignored).
     ///
     /// # Panics
     /// If `devices` is empty.
-    pub fn new(devices: Vec<TrainingDevice>) -> Self {
+    pub fn new(devices: Vec<TrainingDevice>, shares: usize) -> Self {
         assert!(!devices.is_empty(), "at least one device");
         let names = devices.iter().map(|d| d.name.clone()).collect();
         let devices: Vec<Device> = devices.into_iter().map(|d| d.device).collect();
         let multi = (devices.len() > 1).then(|| MultiDevicesTrainStep::new(&devices));
+        let shares = if devices.len() > 1 {
+            devices.len()
+        } else {
+            shares.max(1)
+        };
         Self {
             devices,
             names,
             multi,
+            shares,
         }
+    }
+
+    /// Shares of each step's batch (fewer when the batch has fewer samples).
+    pub fn shares(&self) -> usize {
+        self.shares
+    }
+
+    /// The index of the device share `share` runs on.
+    pub fn device_of(&self, share: usize) -> usize {
+        share % self.devices.len()
     }
 
     /// Device `index`'s failure `why` as an error naming it.
@@ -125,9 +168,9 @@ impl DataParallel {
         &self.devices[0]
     }
 
-    /// Forward and backward of `shares` (share `i` on device `i`; fewer shares than devices
-    /// leave the last devices idle). Returns the summed gradients on the main device and the
-    /// summed values of the shares.
+    /// Forward and backward of `shares` (share `i` on device [`DataParallel::device_of`]`(i)`;
+    /// fewer shares than devices leave the last devices idle). Returns the summed gradients on
+    /// the main device and the summed values of the shares.
     ///
     /// # Errors
     /// [`TrainError::Worker`] when a worker panicked.
@@ -137,22 +180,7 @@ impl DataParallel {
         shares: Vec<TrainItem>,
     ) -> Result<(GradientsParams, StepValues)> {
         let Some(multi) = &self.multi else {
-            let mut grads = None;
-            let mut values = Vec::new();
-            for share in shares {
-                let out = TrainStep::step(model, share);
-                grads = Some(match grads.take() {
-                    None => out.grads,
-                    Some(g) => {
-                        let mut acc = GradientsAccumulator::new();
-                        acc.accumulate(model, g);
-                        acc.accumulate(model, out.grads);
-                        acc.grads()
-                    }
-                });
-                values.push(out.item);
-            }
-            return Ok((grads.unwrap_or_default(), StepValues::sum(&values)));
+            return Ok(self.concurrent(model, shares));
         };
         let mut shares = shares.into_iter();
         let mut loaders: Vec<Box<dyn DataLoaderIterator<TrainItem>>> = (0..self.devices.len())
@@ -181,6 +209,29 @@ impl DataParallel {
             values.push(output.item);
         }
         Ok((accumulator.grads(), StepValues::sum(&values)))
+    }
+
+    /// The shares of one device, computed at once on rayon's pool: the first on `model`, each
+    /// other on a fork of it (the same weights under new autodiff leaves, so that every
+    /// share's backward pass walks its own graph). The gradients are summed in share order, so
+    /// a step gives the same result whichever thread ran which share.
+    fn concurrent(&self, model: &Trainee, shares: Vec<TrainItem>) -> (GradientsParams, StepValues) {
+        let device = self.main_device();
+        let outputs: Vec<_> = shares
+            .into_par_iter()
+            .enumerate()
+            .map(|(i, share)| match i {
+                0 => TrainStep::step(model, share),
+                _ => TrainStep::step(&model.clone().fork(device), share),
+            })
+            .collect();
+        let mut accumulator = GradientsAccumulator::new();
+        let mut values = Vec::new();
+        for output in outputs {
+            accumulator.accumulate(model, output.grads);
+            values.push(output.item);
+        }
+        (accumulator.grads(), StepValues::sum(&values))
     }
 }
 

@@ -25,7 +25,7 @@ use crate::config::TrainingConfig;
 use crate::data::{DataOrder, Prefetcher};
 use crate::error::{Result, TrainError};
 use crate::loss_scale::LossScaleConfig;
-use crate::parallel::{fingerprint, training_devices};
+use crate::parallel::{TrainingDevice, cpu_shares, fingerprint, training_devices};
 use crate::served::guarded;
 use crate::start::{initial_model, prepare_run_folder};
 use crate::step::StepLoss;
@@ -86,6 +86,10 @@ pub struct RunOptions {
     pub backend: BackendKind,
     /// Training devices (data parallel): local ones, or devices served by `prism serve`.
     pub devices: DeviceList,
+    /// On one local device of a CPU backend: the shares of each step's batch computed at once
+    /// on rayon's pool ([`crate::parallel::cpu_shares`]); `None`: two where the pool has two
+    /// threads or more. 1 computes each batch whole.
+    pub cpu_shares: Option<usize>,
     /// The credential the servers of `devices` check.
     pub token: Option<String>,
     /// Draw a progress bar (and print validations) on stderr.
@@ -114,6 +118,7 @@ impl RunOptions {
             init: None,
             backend,
             devices: DeviceList::default(),
+            cpu_shares: None,
             token: None,
             progress: false,
             lpips_weights: None,
@@ -180,16 +185,21 @@ pub fn train(config: &TrainingConfig, task: &dyn Task, options: &RunOptions) -> 
     let start = initial_model(&config, resumed.as_ref(), options, &devices[0].device)?;
     let first = start.step;
     check_unfinished(options, first, config.train.steps)?;
-    if let Some(before) = resumed.as_ref().map(|c| c.state.devices)
-        && before != devices.len()
-    {
-        eprintln!(
-            "resuming on {} devices (the run trained on {before} so far): each step's batch is \
-             split into {} shares instead of {before}; the result equals the run's up to float \
-             rounding, not bit for bit",
-            devices.len(),
-            devices.len().min(config.train.batch_size),
-        );
+    let shares = step_shares(options, &devices);
+    if let Some(state) = resumed.as_ref().map(|c| &c.state) {
+        let now = shares.min(config.train.batch_size);
+        let before = state
+            .shares
+            .unwrap_or(state.devices.min(config.train.batch_size));
+        if state.devices != devices.len() || before != now {
+            eprintln!(
+                "resuming on {} devices (the run trained on {} so far): each step's batch is \
+                 split into {now} shares instead of {before}; the result equals the run's up to \
+                 float rounding, not bit for bit",
+                devices.len(),
+                state.devices,
+            );
+        }
     }
     for device in devices
         .iter()
@@ -205,8 +215,18 @@ pub fn train(config: &TrainingConfig, task: &dyn Task, options: &RunOptions) -> 
         background: reader.meta().background,
         precision: start.precision,
     };
-    let served = devices.iter().map(|d| d.loads_shares).collect();
-    let mut step = TrainingStep::new(&config, start, resumed.as_ref(), task, &data, devices)?;
+    let served = (0..shares)
+        .map(|i| devices[i % devices.len()].loads_shares)
+        .collect();
+    let mut step = TrainingStep::new(
+        &config,
+        start,
+        resumed.as_ref(),
+        task,
+        &data,
+        devices,
+        shares,
+    )?;
     let mut cadence = Cadence::start(&config, options, task, &reader, &step, resumed.as_ref())?;
     let mut prefetcher = prefetch(train_set, &config, first, served);
     while let Some((index, shares)) = timed(Phase::DataWait, || prefetcher.next_step()) {
@@ -219,6 +239,17 @@ pub fn train(config: &TrainingConfig, task: &dyn Task, options: &RunOptions) -> 
         })?;
     }
     Ok(cadence.finish(&step))
+}
+
+/// Shares of each step's batch: one per device; on one local device of a CPU backend,
+/// [`cpu_shares`] of `options.cpu_shares`, computed at once.
+fn step_shares(options: &RunOptions, devices: &[TrainingDevice]) -> usize {
+    match devices {
+        [device] if options.backend.is_cpu() && !is_served(&device.device) => {
+            cpu_shares(options.cpu_shares)
+        }
+        _ => devices.len(),
+    }
 }
 
 /// `config` with `--steps` (`options.steps`) as its `train.steps`.

@@ -145,8 +145,9 @@ pub struct TrainingStep<'a> {
 impl<'a> TrainingStep<'a> {
     /// The step of `task` with `config`, from `start` (its model, precision and loss scaling;
     /// with the optimizer and scheduler state of `resumed`, when resuming), on `devices` (the
-    /// first is the main device, where `start`'s model is); each device's objective is built
-    /// here.
+    /// first is the main device, where `start`'s model is), each step's batch cut into
+    /// `shares` shares when there is one device ([`DataParallel::new`]); each device's
+    /// objective is built here.
     ///
     /// # Errors
     /// Unreadable optimizer or scheduler state; an objective that cannot be built.
@@ -157,6 +158,7 @@ impl<'a> TrainingStep<'a> {
         task: &'a dyn Task,
         data: &TaskData,
         devices: Vec<TrainingDevice>,
+        shares: usize,
     ) -> Result<Self> {
         let train = &config.train;
         let total = train.steps;
@@ -192,7 +194,7 @@ impl<'a> TrainingStep<'a> {
             scheduler,
             backbone,
             heads,
-            parallel: DataParallel::new(devices),
+            parallel: DataParallel::new(devices, shares),
             losses,
             task,
             grad_clip_norm: train.grad_clip_norm,
@@ -306,21 +308,24 @@ impl<'a> TrainingStep<'a> {
             .enumerate()
             .map(|(i, share)| {
                 let weight = share.pairs() as f64 / pairs as f64;
+                let device = self.parallel.device_of(i);
                 let batch = match share {
-                    Share::Loaded(samples) => PrismBatcher.batch_samples(&samples, &devices[i]),
+                    Share::Loaded(samples) => {
+                        PrismBatcher.batch_samples(&samples, &devices[device])
+                    }
                     Share::Served { items, metas } => {
                         let request = ShardRequest {
                             items,
                             ..self.shard.clone()
                         };
-                        let planes = prism_remote::shard::load(&devices[i], &request)
-                            .map_err(|why| self.parallel.failure(i, &why))?;
+                        let planes = prism_remote::shard::load(&devices[device], &request)
+                            .map_err(|why| self.parallel.failure(device, &why))?;
                         PrismBatch::assemble(&metas, planes)
                     }
                 };
                 Ok(TrainItem {
                     batch,
-                    loss: self.losses[i].clone(),
+                    loss: self.losses[device].clone(),
                     weight,
                     loss_scale,
                     step,
@@ -352,6 +357,7 @@ impl<'a> TrainingStep<'a> {
             non_finite_in_row: self.guard.in_row,
             skipped_steps: self.guard.skipped,
             devices: self.parallel.devices().len(),
+            shares: Some(self.parallel.shares().min(config.train.batch_size)),
             backend: backend.to_string(),
             new_blocks: self.new_blocks.clone(),
             precision: self.precision,

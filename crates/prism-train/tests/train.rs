@@ -1,6 +1,6 @@
 //! The training loop on a small ray-cast dataset (ndarray backend; the learning test on flex):
-//! exact resumption, data parallelism on two devices, the non-finite guard, checkpoint
-//! bookkeeping and config checks.
+//! exact resumption, data parallelism (two devices, two shares at once on one), the non-finite
+//! guard, checkpoint bookkeeping and config checks.
 
 mod common;
 
@@ -234,36 +234,50 @@ fn a_checkpoint_replace_failed_at_any_step_leaves_a_checkpoint_to_resume_from() 
 }
 
 #[test]
-fn two_devices_train_like_one() {
+fn shares_train_like_one_batch() {
     let _serial = common::serial();
     let config = tiny_config(2, |c| c.train.batch_size = 3);
-    let one = tempfile::tempdir().unwrap();
-    let two = tempfile::tempdir().unwrap();
-    train(&config, &TeacherTask::default(), &options(one.path())).unwrap();
-    let mut o = options(two.path());
-    o.devices = prism_remote::DeviceList::local(2);
-    let summary = train(&config, &TeacherTask::default(), &o).unwrap();
-    assert_eq!(summary.steps, 2);
-    let state = Checkpoint::read(two.path()).unwrap().state;
-    assert_eq!(state.devices, 2);
+    let run = |edit: &dyn Fn(&mut RunOptions)| {
+        let dir = tempfile::tempdir().unwrap();
+        let mut o = options(dir.path());
+        edit(&mut o);
+        let summary = train(&config, &TeacherTask::default(), &o).unwrap();
+        assert_eq!(summary.steps, 2);
+        dir
+    };
+    let whole = run(&|o| o.cpu_shares = Some(1));
+    let concurrent = run(&|o| o.cpu_shares = Some(2));
+    let two = run(&|o| o.devices = prism_remote::DeviceList::local(2));
+    let state = |dir: &tempfile::TempDir| Checkpoint::read(dir.path()).unwrap().state;
+    assert_eq!((state(&whole).devices, state(&whole).shares), (1, Some(1)));
+    assert_eq!(
+        (state(&concurrent).devices, state(&concurrent).shares),
+        (1, Some(2))
+    );
+    assert_eq!((state(&two).devices, state(&two).shares), (2, Some(2)));
     // The shares (2 + 1 samples) are weighted by their pairs, so the summed gradient is the
     // whole batch's: the same loss and gradient norm at every step, and the same weights, up to
     // float rounding. AdamW divides a gradient by its own running size, so the weights alone
-    // would let a gradient wrong by a constant factor (a sum over devices, not a mean) pass;
+    // would let a gradient wrong by a constant factor (a sum over shares, not a mean) pass;
     // its norm would not.
-    let diff = max_difference(&weights(one.path()), &weights(two.path()));
-    assert!(diff < 1e-5, "max difference {diff}");
-    let (want, got) = (curve(one.path()), curve(two.path()));
+    let want = curve(whole.path());
     assert_eq!(want.len(), 2, "{want:?}");
-    assert_eq!(got.len(), want.len(), "{got:?}");
-    for (step, (w, g)) in want.iter().zip(&got).enumerate() {
-        let close = |a: f64, b: f64| (a - b).abs() <= 1e-5 * b.abs();
-        assert!(
-            close(g.0, w.0) && close(g.1, w.1),
-            "step {}: (loss, gradient norm) {g:?} on two devices, {w:?} on one",
-            step + 1
-        );
+    for (name, dir) in [("two shares at once", &concurrent), ("two devices", &two)] {
+        let diff = max_difference(&weights(whole.path()), &weights(dir.path()));
+        assert!(diff < 1e-5, "{name}: max difference {diff}");
+        let got = curve(dir.path());
+        assert_eq!(got.len(), want.len(), "{name}: {got:?}");
+        for (step, (w, g)) in want.iter().zip(&got).enumerate() {
+            let close = |a: f64, b: f64| (a - b).abs() <= 1e-5 * b.abs();
+            assert!(
+                close(g.0, w.0) && close(g.1, w.1),
+                "step {}: (loss, gradient norm) {g:?} with {name}, {w:?} with the batch whole",
+                step + 1
+            );
+        }
     }
+    // Two shares on one device and one share on each of two devices compute the same sums.
+    assert_eq!(curve(concurrent.path()), curve(two.path()));
 }
 
 /// Each step's loss and gradient norm (of the devices' combined gradient), from a run's
