@@ -155,6 +155,12 @@ fn bad_input_is_one_clear_line() {
     let err = stderr(&out);
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert!(err.contains("/nonexistent/ckpt"), "{err}");
+
+    // No shares at all: refused by the argument parser, naming the flag.
+    let out = output(prism(&good, &dir.join("run3"), &["--cpu-shares", "0"]));
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("--cpu-shares"), "{err}");
 }
 
 /// Teacher training on the tiny synthetic people through the binary, on two (CPU) devices:

@@ -92,17 +92,14 @@ pub fn fingerprint(config: &TrainingConfig) -> Fingerprint {
     Fingerprint::this_build(Some(config_digest(&model)))
 }
 
-/// The shares of each step's batch on one local device of a CPU backend, when the run does not
-/// ask for a number (`--cpu-shares`): two when rayon's pool has at least two threads, else one.
-/// On a 2-core Xeon two shares took the teacher's step to 0.91x of its time and the student's
-/// to 0.90x; four took it to 0.94x, their products being smaller (BENCHMARKS.md, issue 43's
-/// "Two shares of each batch at once").
+/// The shares of each step's batch on one local device of a CPU backend: `asked`
+/// (`--cpu-shares`), else one, the batch whole. On a 2-core Xeon two shares took the teacher's
+/// step to 0.90x of its time and the student's to 0.88x, but the main job's teacher trained
+/// with them scored 0.44 dB lower on average over six training seeds, for a reason not yet
+/// found (each step's losses and gradient norm are the batch's to 1e-7; BENCHMARKS.md, issue
+/// 43's "Two shares of each batch at once"). So they are not the default.
 pub fn cpu_shares(asked: Option<usize>) -> usize {
-    asked.unwrap_or(if rayon::current_num_threads() >= 2 {
-        2
-    } else {
-        1
-    })
+    asked.unwrap_or(1)
 }
 
 /// Runs the forward and backward passes of a step's shares on their devices.
