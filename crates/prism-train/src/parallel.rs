@@ -26,8 +26,8 @@ use burn::data::dataset::DatasetError;
 use burn::module::Module;
 use burn::optim::{GradientsAccumulator, GradientsParams};
 use burn::tensor::Device;
-use burn_train::TrainStep;
 use burn_train::train::{MultiDeviceStepError, MultiDevicesTrainStep};
+use burn_train::{TrainOutput, TrainStep};
 use prism_core::BackendKind;
 use prism_remote::{DeviceList, Fingerprint, config_digest};
 use rayon::prelude::*;
@@ -199,13 +199,13 @@ impl DataParallel {
         let main = self.main_device();
         let mut outputs: Vec<_> = outputs.into_iter().map(|o| o.output).collect();
         outputs.sort_by_key(|o| o.item.share);
-        let mut accumulator = GradientsAccumulator::new();
-        let mut values = Vec::new();
-        for output in outputs {
-            accumulator.accumulate(model, output.grads.to_device(main, model));
-            values.push(output.item);
-        }
-        Ok((accumulator.grads(), StepValues::sum(&values)))
+        Ok(summed(
+            model,
+            outputs.into_iter().map(|mut output| {
+                output.grads = output.grads.to_device(main, model);
+                output
+            }),
+        ))
     }
 
     /// The shares of one device, computed at once on rayon's pool: the first on `model`, each
@@ -222,14 +222,23 @@ impl DataParallel {
                 _ => TrainStep::step(&model.clone().fork(device), share),
             })
             .collect();
-        let mut accumulator = GradientsAccumulator::new();
-        let mut values = Vec::new();
-        for output in outputs {
-            accumulator.accumulate(model, output.grads);
-            values.push(output.item);
-        }
-        (accumulator.grads(), StepValues::sum(&values))
+        summed(model, outputs)
     }
+}
+
+/// The shares' outputs, in share order and with their gradients on the main device: the
+/// gradients summed, and the values.
+fn summed(
+    model: &Trainee,
+    outputs: impl IntoIterator<Item = TrainOutput<StepValues>>,
+) -> (GradientsParams, StepValues) {
+    let mut accumulator = GradientsAccumulator::new();
+    let mut values = Vec::new();
+    for output in outputs {
+        accumulator.accumulate(model, output.grads);
+        values.push(output.item);
+    }
+    (accumulator.grads(), StepValues::sum(&values))
 }
 
 /// A data loader iterator over at most one share: what one worker of
