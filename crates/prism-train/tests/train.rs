@@ -246,7 +246,8 @@ fn shares_train_like_one_batch() {
         dir
     };
     let whole = run(&|o| o.cpu_shares = Some(1));
-    let concurrent = run(&|o| o.cpu_shares = Some(2));
+    // The default on a CPU backend: two shares at once.
+    let concurrent = run(&|_| {});
     let two = run(&|o| o.devices = prism_remote::DeviceList::local(2));
     let state = |dir: &tempfile::TempDir| Checkpoint::read(dir.path()).unwrap().state;
     assert_eq!((state(&whole).devices, state(&whole).shares), (1, Some(1)));
