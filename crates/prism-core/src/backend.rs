@@ -79,6 +79,20 @@ impl BackendKind {
     }
 }
 
+/// Whether `device` computes on this machine's CPU (a flex or ndarray device, with or without
+/// autodiff).
+pub fn is_cpu_device(device: &Device) -> bool {
+    use burn::backend::DispatchDevice;
+    fn cpu(device: &DispatchDevice) -> bool {
+        match device {
+            DispatchDevice::Flex(_) | DispatchDevice::NdArray(_) => true,
+            DispatchDevice::Autodiff(inner) => cpu(inner),
+            _ => false,
+        }
+    }
+    cpu(device.clone().inner().as_dispatch())
+}
+
 /// Whether `device` is served by another process (`prism serve`, Burn's remote backend).
 pub fn is_served(device: &Device) -> bool {
     matches!(
@@ -134,5 +148,18 @@ mod tests {
         }
         let err = "cuda9".parse::<BackendKind>().unwrap_err();
         assert!(err.to_string().contains("cuda9"));
+    }
+
+    /// The CPU backends' devices count as CPU devices, with autodiff too; a GPU's does not.
+    #[test]
+    fn cpu_devices_are_told_apart() {
+        for kind in [BackendKind::Ndarray, BackendKind::Flex] {
+            assert!(is_cpu_device(&kind.device().unwrap()), "{kind}");
+            assert!(is_cpu_device(&kind.autodiff_device().unwrap()), "{kind}");
+        }
+        if let Ok(gpu) = BackendKind::Wgpu.device() {
+            assert!(!is_cpu_device(&gpu));
+            assert!(!is_cpu_device(&gpu.autodiff()));
+        }
     }
 }

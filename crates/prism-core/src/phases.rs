@@ -3,9 +3,10 @@
 //!
 //! A phase is timed by wrapping its call in [`timed`], which adds the call's wall time to the
 //! totals of the calling thread; a job reads [`phase_totals`] before and after a part of its
-//! work and takes the difference ([`PhaseTimes::since`]). The totals are per thread: the
-//! training loop, validation, evaluation and LPIPS scoring all run on the thread that called
-//! them, so two jobs on two threads (two tests) never mix their times.
+//! work and takes the difference ([`PhaseTimes::since`]). The totals are per thread, so two
+//! jobs on two threads (two tests) never mix their times: the training loop, validation and
+//! evaluation run on the thread that called them, and work they hand to rayon's pool (batches
+//! scored at once, with their LPIPS) is timed with [`recorded`] and [`credit`]ed back to it.
 //!
 //! On GPU backends kernels run asynchronously: a phase's wall time covers its device work only
 //! up to its last read of values to the host (a synchronisation). Every phase below ends with
@@ -90,6 +91,13 @@ impl PhaseTimes {
         out
     }
 
+    /// Every phase's seconds times `factor`.
+    pub fn scaled(&self, factor: f64) -> PhaseTimes {
+        let mut out = *self;
+        out.seconds.iter_mut().for_each(|s| *s *= factor);
+        out
+    }
+
     /// The sum of the phases that are not nested in others: the wall time they cover.
     pub fn top_level_seconds(&self) -> f64 {
         Phase::ALL
@@ -122,9 +130,56 @@ pub fn phase_totals() -> PhaseTimes {
     TOTALS.with(Cell::get)
 }
 
+/// Runs `f`, returning with its result the phase times it added, which are taken out of this
+/// thread's totals again: for work that may run on another thread of rayon's pool (a batch
+/// scored beside another), whose times the calling thread then [`credit`]s to itself.
+pub fn recorded<T>(f: impl FnOnce() -> T) -> (T, PhaseTimes) {
+    let before = phase_totals();
+    let out = f();
+    let times = phase_totals().since(&before);
+    TOTALS.with(|totals| totals.set(before));
+    (out, times)
+}
+
+/// Adds `times` (from [`recorded`]) to this thread's totals.
+pub fn credit(times: &PhaseTimes) {
+    TOTALS.with(|totals| {
+        let mut now = totals.get();
+        for phase in Phase::ALL {
+            now.add(phase, times.get(phase));
+        }
+        totals.set(now);
+    });
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn recorded_times_move_to_the_thread_that_credits_them() {
+        // Each test runs on a thread of its own, whose totals start at zero.
+        assert_eq!(phase_totals(), PhaseTimes::default());
+        let (value, times) = std::thread::spawn(|| {
+            recorded(|| {
+                timed(Phase::Lpips, || {
+                    std::thread::sleep(std::time::Duration::from_millis(20));
+                    7
+                })
+            })
+        })
+        .join()
+        .unwrap();
+        assert_eq!(value, 7);
+        assert!(times.get(Phase::Lpips) >= 0.02, "{times:?}");
+        assert_eq!(phase_totals(), PhaseTimes::default());
+        // Recorded on this thread, the times leave its totals until credited.
+        let ((), again) = recorded(|| credit(&times));
+        assert_eq!(again, times);
+        assert_eq!(phase_totals(), PhaseTimes::default());
+        credit(&times);
+        assert_eq!(phase_totals(), times);
+    }
 
     #[test]
     fn timed_phases_add_up_per_thread() {

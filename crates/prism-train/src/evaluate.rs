@@ -32,25 +32,22 @@ use prism_core::protocol::EVAL_TARGETS;
 use prism_data::{
     DatasetReader, PrismBatcher, RegionMethod, Sample, SampleDataset, SplitKind, TargetSelection,
 };
-use prism_losses::{
-    GroundTruth, ImageScores, Lpips, SpeckleSums, psnr, psnr_region_filled, score_images,
-    score_region, speckle_sums,
-};
+use prism_losses::{ImageScores, Lpips, SpeckleSums, psnr};
 use prism_model::{Precision, Prism};
 use serde::Serialize;
 
 use crate::baselines::{BaselineCache, BaselineKey, Baselines};
 use crate::checkpoint::{CHECKPOINTS_DIR, load_inference_model};
+use crate::chunk_scores::{ChunkScorer, MethodBatch, all_at_once, chunks_at_once};
 use crate::error::{Result, TrainError};
 use crate::images::{error_map, save_png, tile};
 use crate::log::METRICS_FILE;
-use crate::oracle::{DepthError, OracleBatch, Swap, draw};
-use crate::predict::{Pairs, forward_pairs, inference_model, synthesise};
+use crate::oracle::{DepthError, Swap};
+use crate::predict::{Pairs, inference_model, synthesise};
 use crate::report::{EvaluationFiles, write_evaluation};
 use crate::tally::{DisoccludedScores, MeanScores, MethodScores, PerAngle, Tally};
 use crate::validate::validation_views;
 use crate::warp::{WARP_FOOTPRINTS, true_depth_warp};
-use prism_core::images::HostImages;
 use prism_model::GsColour;
 
 /// How an evaluation runs.
@@ -79,6 +76,10 @@ pub struct EvaluateOptions {
     /// The baselines' scores of the last evaluation with these options (or a clone of them),
     /// reused by the next one on the same views: they do not depend on the model.
     pub baselines: BaselineCache,
+    /// Batches of views predicted and scored at once (`None`: two on a CPU device, where one
+    /// fills the other's single-threaded stretches, one on a GPU). The scores are the same
+    /// whatever it is.
+    pub at_once: Option<usize>,
 }
 
 impl Default for EvaluateOptions {
@@ -93,6 +94,7 @@ impl Default for EvaluateOptions {
             precision: Precision::F32,
             oracle: false,
             baselines: BaselineCache::default(),
+            at_once: None,
         }
     }
 }
@@ -204,6 +206,19 @@ pub struct OracleScores {
 pub(crate) struct MethodTally {
     scores: Tally,
     speckle: SpeckleSums,
+}
+
+impl MethodTally {
+    /// Adds a chunk's scores of `samples`' views (chunks added in their order give the
+    /// tallies of the views scored one chunk after another).
+    fn add(&mut self, samples: &[Sample], batch: MethodBatch) {
+        self.scores.add_batch(samples, &batch.full);
+        self.scores
+            .add_disoccluded(samples, &batch.region, &batch.filled);
+        for sums in batch.speckle {
+            self.speckle.add(sums);
+        }
+    }
 }
 
 /// The true-depth warp's mean PSNR at one footprint.
@@ -344,105 +359,80 @@ pub fn evaluate(
     };
     let mut depth_errors: Vec<f32> = Vec::new();
     let mut grids = Vec::new();
+    let mut grid_rows = Vec::new();
     let mut fps_pair = None;
-    for (s, subject) in subjects.iter().enumerate() {
-        bar.set_message(subject.clone());
-        let mut grid_rows = Vec::new();
-        let predictions_dir = options.save_predictions.as_ref().map(|d| d.join(subject));
-        if let Some(dir) = &predictions_dir {
-            fs::create_dir_all(dir).map_err(|e| TrainError::io(dir, e))?;
-        }
-        for chunk in views.chunks(batch_size) {
-            let samples = chunk
-                .iter()
-                .map(|&v| dataset.load(s * 100 + v - 1))
-                .collect::<std::result::Result<Vec<Sample>, _>>()?;
-            let batch = PrismBatcher.batch_samples(&samples, device);
-            let pairs = Pairs::of_batch(&batch, background);
-            if fps_pair.is_none() {
-                fps_pair = Some(pairs.slice(0, 1));
-            }
-            let out = forward_pairs(if has_gs { model } else { &fast }, &pairs);
-            let pred = out.image.clone().clamp(0.0, 1.0);
-            let gt = batch.target_image.clone();
-            let gt_host = HostImages::from_tensor(gt.clone());
-            let masks: Vec<&[f32]> = samples
-                .iter()
-                .map(|s| s.targets[0].mask.as_raw().as_slice())
-                .collect();
-            let (region, method) = disoccluded_regions(&samples, device);
-            if method == RegionMethod::Estimate {
+    let chunks = ChunkScorer {
+        model: if has_gs { model } else { &fast },
+        dataset: &dataset,
+        background,
+        footprint,
+        baselines: kept.is_none(),
+        oracle: options.oracle,
+        lpips,
+        device,
+    };
+    // Each subject's views in chunks of `batch_size`, in order.
+    let jobs: Vec<(usize, &[usize])> = (0..subjects.len())
+        .flat_map(|s| views.chunks(batch_size).map(move |chunk| (s, chunk)))
+        .collect();
+    let at_once = options.at_once.unwrap_or_else(|| chunks_at_once(device));
+    for group in jobs.chunks(at_once.max(1)) {
+        bar.set_message(subjects[group[0].0].clone());
+        let results = all_at_once(group, |&(s, chunk)| chunks.score(s, chunk));
+        for (&(s, chunk), result) in group.iter().zip(results) {
+            let result = result?;
+            let samples = &result.samples;
+            if let Some(method) = result.disoccluded_by {
                 disoccluded_by = method;
             }
-            let truth = GroundTruth::new(gt.clone(), lpips);
-            // Scores `image` into `tally`; returns it on the host.
-            let score = |tally: &mut MethodTally, image: Tensor<4>| {
-                let scores = &mut tally.scores;
-                scores.add_batch(&samples, &score_images(image.clone(), &truth));
-                let in_region = score_region(image.clone(), &truth, region.clone());
-                let filled = psnr_region_filled(image.clone(), gt.clone(), region.clone());
-                scores.add_disoccluded(&samples, &in_region, &filled);
-                let host = HostImages::from_tensor(image);
-                for (i, mask) in masks.iter().enumerate() {
-                    tally.speckle.add(speckle_sums(
-                        &host.images[i],
-                        &gt_host.images[i],
-                        Some(mask),
-                        host.width,
-                        host.height,
-                    ));
-                }
-                host
-            };
-            let pred_host = score(&mut nvs, pred);
-            let src_host = if kept.is_some() {
-                HostImages::from_tensor(batch.source_image.clone())
-            } else {
-                let warped = true_depth_warp(&samples, background, footprint, device);
-                score(&mut warp, warped);
-                score(&mut copy, batch.source_image.clone())
-            };
-            if let Some(g) = &out.gaussians {
-                score(&mut gs, g.image.clone().clamp(0.0, 1.0));
-                if options.oracle {
-                    let truth = OracleBatch::new(&samples, &g.gaussians).with_surface(&g.surface);
-                    depth_errors.extend(truth.depth_errors());
-                    let [_, _, h, w] = gt.dims();
-                    for (tallies, &swap) in oracle.iter_mut().zip(&Swap::ALL) {
-                        let swapped = truth.swapped(swap, footprint, device);
-                        let render = draw(&swapped, &samples, background, device);
-                        let decoded =
-                            model
-                                .nvs_head
-                                .forward(out.target_t_out(), h, w, Some(render.clone()));
-                        let [gs_tally, nvs_tally] = tallies;
-                        score(gs_tally, render);
-                        score(nvs_tally, decoded.clamp(0.0, 1.0));
-                    }
-                }
+            fps_pair.get_or_insert(result.first_pair);
+            nvs.add(samples, result.nvs);
+            if let Some(batch) = result.gs {
+                gs.add(samples, batch);
             }
+            if let Some([warped, copied]) = result.baselines {
+                warp.add(samples, warped);
+                copy.add(samples, copied);
+            }
+            for (tallies, batches) in oracle.iter_mut().zip(result.oracle) {
+                let [gs_tally, nvs_tally] = tallies;
+                let [gs_batch, nvs_batch] = batches;
+                gs_tally.add(samples, gs_batch);
+                nvs_tally.add(samples, nvs_batch);
+            }
+            depth_errors.extend(result.depth_errors);
+            let predictions_dir = options
+                .save_predictions
+                .as_ref()
+                .map(|d| d.join(&subjects[s]));
+            if let Some(dir) = &predictions_dir {
+                fs::create_dir_all(dir).map_err(|e| TrainError::io(dir, e))?;
+            }
+            let (pred, src, gt) = (&result.pred, &result.source, &result.truth);
             for (i, sample) in samples.iter().enumerate() {
                 let target = &sample.targets[0];
                 if let Some(dir) = &predictions_dir {
                     let path = dir.join(format!("{:03}.png", target.index));
-                    save_png(&path, &pred_host.rgb8(i))?;
+                    save_png(&path, &pred.rgb8(i))?;
                 }
                 if grid_views.contains(&target.index) {
-                    let (w, h) = (pred_host.width, pred_host.height);
+                    let (w, h) = (pred.width, pred.height);
                     grid_rows.push(vec![
-                        src_host.rgb8(i),
-                        pred_host.rgb8(i),
-                        gt_host.rgb8(i),
-                        error_map(&pred_host.images[i], &gt_host.images[i], w, h),
+                        src.rgb8(i),
+                        pred.rgb8(i),
+                        gt.rgb8(i),
+                        error_map(&pred.images[i], &gt.images[i], w, h),
                     ]);
                 }
             }
             bar.inc(chunk.len() as u64);
+            if chunk.last() == views.last() {
+                grids.push(SubjectGrid {
+                    subject: subjects[s].clone(),
+                    image: tile(&std::mem::take(&mut grid_rows)),
+                });
+            }
         }
-        grids.push(SubjectGrid {
-            subject: subject.clone(),
-            image: tile(&grid_rows),
-        });
     }
     bar.finish_and_clear();
     let Baselines { copy, warp, .. } = match kept {
@@ -571,27 +561,6 @@ fn best_footprint(sweep: &[FootprintPsnr]) -> f32 {
         .max_by(|a, b| a.psnr.total_cmp(&b.psnr))
         .expect("at least one footprint")
         .footprint
-}
-
-/// The disoccluded region of each sample's (first) target view, `[B, 1, H, W]` on `device`,
-/// and how it was found (the estimate when any sample lacked depth maps).
-fn disoccluded_regions(samples: &[Sample], device: &Device) -> (Tensor<4>, RegionMethod) {
-    let target = &samples[0].targets[0];
-    let (w, h) = (target.mask.width() as usize, target.mask.height() as usize);
-    let mut method = RegionMethod::DepthTest;
-    let mut values = Vec::with_capacity(samples.len() * w * h);
-    for sample in samples {
-        let (region, by) = sample.disoccluded_region(0);
-        if by == RegionMethod::Estimate {
-            method = by;
-        }
-        values.extend(region.into_raw());
-    }
-    let region = Tensor::from_data(
-        burn::tensor::TensorData::new(values, [samples.len(), 1, h, w]),
-        device,
-    );
-    (region, method)
 }
 
 /// Forward passes per second of `model` on `pair` (one pair): two warm-up passes, then `runs`

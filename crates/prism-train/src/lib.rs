@@ -32,6 +32,7 @@ pub mod baselines;
 pub mod budget;
 pub mod cadence;
 pub mod checkpoint;
+mod chunk_scores;
 pub mod clip;
 pub mod config;
 pub mod convert;

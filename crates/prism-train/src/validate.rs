@@ -11,6 +11,7 @@ use prism_data::{
 use prism_losses::{GroundTruth, ImageScores, Lpips, score_images};
 use prism_model::Prism;
 
+use crate::chunk_scores::{all_at_once, chunks_at_once};
 use crate::error::Result;
 use crate::tally::Tally;
 
@@ -102,28 +103,40 @@ impl Validator {
     }
 
     /// The scores of `predict`'s images of every held-out view; with `grid_rows`, the first
-    /// [`GRID_ROWS`] views of the first subject as (source, prediction, ground truth).
+    /// [`GRID_ROWS`] views of the first subject as (source, prediction, ground truth). Batches
+    /// are predicted and scored [`chunks_at_once`] at a time, as `prism evaluate` does, and
+    /// tallied in their order.
     fn score(
         &self,
-        predict: impl Fn(&PrismBatch) -> Tensor<4>,
+        predict: impl Fn(&PrismBatch) -> Tensor<4> + Sync,
         mut grid_rows: Option<&mut Vec<[Tensor<4>; 3]>>,
     ) -> ImageScores {
         let mut tally = Tally::default();
-        for chunk in self.samples.chunks(VALIDATION_BATCH) {
-            let batch = PrismBatcher.batch_samples(chunk, &self.device);
-            let pred = predict(&batch).clamp(0.0, 1.0);
-            let gt = batch.target_image.clone();
-            if let Some(rows) = grid_rows.as_deref_mut() {
-                let [_, c, h, w] = pred.dims();
-                for (i, sample) in chunk.iter().enumerate() {
-                    if rows.len() < GRID_ROWS && sample.subject == self.samples[0].subject {
-                        let row = |t: &Tensor<4>| t.clone().slice([i..i + 1, 0..c, 0..h, 0..w]);
-                        rows.push([row(&batch.source_image), row(&pred), row(&gt)]);
+        let chunks: Vec<&[Sample]> = self.samples.chunks(VALIDATION_BATCH).collect();
+        for group in chunks.chunks(chunks_at_once(&self.device)) {
+            let scored = all_at_once(group, |chunk| {
+                let batch = PrismBatcher.batch_samples(chunk, &self.device);
+                let pred = predict(&batch).clamp(0.0, 1.0);
+                let truth = GroundTruth::new(batch.target_image.clone(), self.lpips.as_ref());
+                let scores = score_images(pred.clone(), &truth);
+                (batch, pred, scores)
+            });
+            for (chunk, (batch, pred, scores)) in group.iter().zip(scored) {
+                if let Some(rows) = grid_rows.as_deref_mut() {
+                    let [_, c, h, w] = pred.dims();
+                    for (i, sample) in chunk.iter().enumerate() {
+                        if rows.len() < GRID_ROWS && sample.subject == self.samples[0].subject {
+                            let row = |t: &Tensor<4>| t.clone().slice([i..i + 1, 0..c, 0..h, 0..w]);
+                            rows.push([
+                                row(&batch.source_image),
+                                row(&pred),
+                                row(&batch.target_image),
+                            ]);
+                        }
                     }
                 }
+                tally.add_batch(chunk, &scores);
             }
-            let truth = GroundTruth::new(gt, self.lpips.as_ref());
-            tally.add_batch(chunk, &score_images(pred, &truth));
         }
         tally.finish().mean()
     }

@@ -4,6 +4,7 @@
 
 mod common;
 
+use std::fs;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -81,7 +82,7 @@ fn a_resumed_run_reproduces_the_uninterrupted_run() {
     common::copy_dir(full.path(), cut.path());
     for (step, dir) in list_checkpoints(cut.path()).unwrap() {
         if step > 3 {
-            std::fs::remove_dir_all(dir).unwrap();
+            fs::remove_dir_all(dir).unwrap();
         }
     }
     let mut resume = options(cut.path());
@@ -225,7 +226,7 @@ fn a_checkpoint_replace_failed_at_any_step_leaves_a_checkpoint_to_resume_from() 
             [2, 3],
             "{state}"
         );
-        let names: Vec<String> = std::fs::read_dir(run.path().join("checkpoints"))
+        let names: Vec<String> = fs::read_dir(run.path().join("checkpoints"))
             .unwrap()
             .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
             .collect();
@@ -492,7 +493,7 @@ fn teacher_training_learns_views_that_copying_cannot_give() {
         "copy {baseline:?}, final {last:?}"
     );
     assert!(last.ssim > initial.ssim && last.lpips < initial.lpips);
-    let _ = std::fs::remove_dir_all(data);
+    let _ = fs::remove_dir_all(data);
 }
 
 #[test]
@@ -643,4 +644,63 @@ fn evaluations_sharing_options_reuse_the_baselines_and_score_the_same() {
     });
     assert!(format!("{:?}", shared.baselines).contains("views: [1, 34, 67]"));
     assert_ne!(more.copy_source, first.copy_source);
+}
+
+/// Batches of views scored at once give the evaluation of batches scored one after another:
+/// the same scores, grids and saved predictions.
+#[test]
+fn batches_scored_at_once_score_as_one_by_one() {
+    let device = BackendKind::Ndarray.device().unwrap();
+    let reader = DatasetReader::open(&dataset()).unwrap();
+    let model = tiny_config(1, |_| {}).model.init(&device);
+    let lpips = prism_losses::Lpips::load_default(None, &device).unwrap();
+    let saved = tempfile::tempdir().unwrap();
+    let evaluate = |at_once: usize| {
+        let dir = saved.path().join(at_once.to_string());
+        let options = EvaluateOptions {
+            views: 3,
+            batch: 1,
+            grid_views: 2,
+            fps_runs: 1,
+            save_predictions: Some(dir.clone()),
+            at_once: Some(at_once),
+            ..EvaluateOptions::default()
+        };
+        let (mut evaluation, grids) =
+            prism_train::evaluate(&model, &reader, 32, Some(&lpips), &device, &options).unwrap();
+        evaluation.fps = 0.0;
+        let mut files: Vec<(PathBuf, Vec<u8>)> = walk(&dir)
+            .into_iter()
+            .map(|f| {
+                (
+                    f.strip_prefix(&dir).unwrap().to_owned(),
+                    fs::read(&f).unwrap(),
+                )
+            })
+            .collect();
+        files.sort();
+        let grids: Vec<_> = grids.into_iter().map(|g| (g.subject, g.image)).collect();
+        (format!("{evaluation:?}"), grids, files)
+    };
+    let (one, grids_one, files_one) = evaluate(1);
+    let (two, grids_two, files_two) = evaluate(2);
+    assert_eq!(one, two);
+    assert!(grids_one == grids_two, "the grids differ");
+    assert_eq!(files_one.len(), 3 * grids_one.len());
+    assert!(files_one == files_two, "the saved predictions differ");
+}
+
+/// Every file under `dir`.
+fn walk(dir: &Path) -> Vec<PathBuf> {
+    fs::read_dir(dir)
+        .unwrap()
+        .flat_map(|entry| {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                walk(&path)
+            } else {
+                vec![path]
+            }
+        })
+        .collect()
 }
