@@ -12,7 +12,7 @@ use std::time::Instant;
 
 use burn::tensor::Device;
 use prism_core::BackendKind;
-use prism_core::backend::is_served;
+use prism_core::backend::{is_cpu_device, is_served};
 use prism_core::phases::{Phase, timed};
 use prism_data::{DatasetReader, SampleDataset};
 use prism_losses::ImageScores;
@@ -241,13 +241,11 @@ pub fn train(config: &TrainingConfig, task: &dyn Task, options: &RunOptions) -> 
     Ok(cadence.finish(&step))
 }
 
-/// Shares of each step's batch: one per device; on one local device of a CPU backend,
-/// [`cpu_shares`] of `options.cpu_shares`, computed at once.
+/// Shares of each step's batch: one per device; on one device of this machine's CPU (not a
+/// served one), [`cpu_shares`] of `options.cpu_shares`, computed at once.
 fn step_shares(options: &RunOptions, devices: &[TrainingDevice]) -> usize {
     match devices {
-        [device] if options.backend.is_cpu() && !is_served(&device.device) => {
-            cpu_shares(options.cpu_shares)
-        }
+        [device] if is_cpu_device(&device.device) => cpu_shares(options.cpu_shares),
         _ => devices.len(),
     }
 }
