@@ -189,6 +189,22 @@ impl BodyLayer {
         self.forward_rotations(betas, rotations, expression)
     }
 
+    /// The joints `[B, 55, 3]` of the shaped body in its rest pose, for `betas [B, 10]` and
+    /// `expression [B, 10]`. The root joint is where [`BodyLayer::forward`] leaves it whatever
+    /// the pose (its joints' row 0, to the bit), so this gives it without posing the vertices.
+    pub fn rest_joints(&self, betas: Tensor<2>, expression: Tensor<2>) -> Tensor<3> {
+        self.joints_of(Tensor::cat(vec![betas, expression], 1))
+    }
+
+    /// The rest joints for the blend coefficients `[betas, expression]` `[B, 20]`: the
+    /// regressor is linear, so the joints of the shaped body are the template's joints plus the
+    /// regressed directions.
+    fn joints_of(&self, coeffs: Tensor<2>) -> Tensor<3> {
+        let [b, _] = coeffs.dims();
+        (coeffs.matmul(self.j_shapedirs.clone()) + self.j_template.clone())
+            .reshape([b, NUM_JOINTS, 3])
+    }
+
     /// [`BodyLayer::forward`] with the joints' rotations given as matrices `[B, 55, 3, 3]`
     /// (row-major) instead of axis-angle.
     pub fn forward_rotations(
@@ -205,13 +221,10 @@ impl BodyLayer {
             "rotations must be [B, 55, 3, 3]"
         );
 
-        // Shape and expression blend shapes, and the rest joints (J_regressor is linear, so the
-        // joints of the shaped body are the template's joints plus the regressed directions).
+        // Shape and expression blend shapes, and the rest joints.
         let coeffs = Tensor::cat(vec![betas, expression], 1);
         let v_shaped = coeffs.clone().matmul(self.shapedirs.clone()) + self.v_template.clone();
-        let rest_joints: Tensor<3> = (coeffs.matmul(self.j_shapedirs.clone())
-            + self.j_template.clone())
-        .reshape([b, NUM_JOINTS, 3]);
+        let rest_joints = self.joints_of(coeffs);
 
         // Pose correctives.
         let feature = rotations

@@ -373,6 +373,33 @@ fn tensor_skinning_matches_f32_on_flex() {
     check_tensor_matches_f32(prism_core::BackendKind::Flex.device().unwrap());
 }
 
+/// The rest joints' root is the posed joints' root, to the bit, whatever the pose; the other
+/// joints move with it.
+#[test]
+fn rest_joints_root_is_the_posed_root() {
+    let device = prism_core::BackendKind::Flex.device().unwrap();
+    let model = random_model(64, 6);
+    let layer = BodyLayer::new(&model, &device);
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let params: Vec<BodyParams> = (0..3).map(|_| random_params(&mut rng, 0.8)).collect();
+    let (betas, pose, expr) = tensor_inputs(&params, &device);
+    let rest = layer.rest_joints(betas.clone(), expr.clone());
+    let posed = layer.forward(betas, pose, expr).joints;
+    let values = |t: Tensor<3>| t.into_data().try_into_vec::<f32>().unwrap();
+    let (rest, posed) = (values(rest), values(posed));
+    for b in 0..3 {
+        let row = |v: &[f32], j: usize| v[(b * NUM_JOINTS + j) * 3..][..3].to_vec();
+        assert_eq!(row(&rest, 0), row(&posed, 0), "root of body {b}");
+        let moved = (1..NUM_JOINTS)
+            .filter(|&j| row(&rest, j) != row(&posed, j))
+            .count();
+        assert!(
+            moved > NUM_JOINTS / 2,
+            "body {b}: only {moved} joints posed"
+        );
+    }
+}
+
 #[test]
 fn tensor_gradients_match_finite_differences() {
     let device = prism_core::BackendKind::Ndarray.autodiff_device().unwrap();

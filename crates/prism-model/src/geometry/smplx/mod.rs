@@ -425,14 +425,10 @@ impl SmplxBranch {
         let rotations = rodrigues(body.pose.clone().reshape([b * NUM_JOINTS, 3]))
             .reshape([b, NUM_JOINTS, 3, 3]);
         // weak_perspective as tensor ops: the anchor sigma J_0 + transl in the source camera.
+        // The root joint does not move with the pose, so the body is not posed for it.
         let root = self
             .body
-            .forward(
-                body.betas.clone(),
-                body.pose.clone(),
-                body.expression.clone(),
-            )
-            .joints
+            .rest_joints(body.betas.clone(), body.expression.clone())
             .detach()
             .narrow(1, 0, 1); // [B, 1, 3]
         let scale = body.scale.clone().reshape([b, 1, 1]);
