@@ -42,7 +42,7 @@ pub use objective::{
 pub use opacity::{opacity_loss, pixel_rows};
 pub use point::{POINT_LOSS_SCALES, PointLoss, point_loss};
 pub use psnr::psnr;
-pub use region::{psnr_region_filled, score_region};
+pub use region::{psnr_region_filled, score_whole_and_region};
 pub use scores::{GroundTruth, ImageScores, score_images};
 pub use smplx::{SmplxParams, smplx_loss};
 pub use speckle::{SMOOTH_LAPLACIAN, SpeckleSums, laplacian_magnitude, speckle_sums};

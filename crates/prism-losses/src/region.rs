@@ -3,6 +3,8 @@
 
 use burn::tensor::Tensor;
 
+use crate::scores::scores_beside_ssim;
+use crate::ssim::image_means;
 use crate::{GroundTruth, ImageScores, ssim_map};
 
 /// Half the SSIM window: an SSIM map pixel `(y, x)` is the window centred at `(y + 5, x + 5)`.
@@ -19,18 +21,26 @@ const SSIM_RADIUS: usize = crate::SSIM_WINDOW / 2;
 ///
 /// An image whose region is empty scores NaN (no pixel to score), as does SSIM when no
 /// window is centred in the region.
-pub fn score_region(pred: Tensor<4>, gt: &GroundTruth<'_>, region: Tensor<4>) -> Vec<ImageScores> {
+///
+/// Returns the scores of the whole images too ([`crate::score_images`], to the bit): both read
+/// the SSIM map, which is computed once.
+pub fn score_whole_and_region(
+    pred: Tensor<4>,
+    gt: &GroundTruth<'_>,
+    region: Tensor<4>,
+) -> (Vec<ImageScores>, Vec<ImageScores>) {
     let [batch, channels, height, width] = pred.dims();
     let truth = gt.image.clone();
+    let map = ssim_map(pred.clone(), truth.clone());
+    let whole = scores_beside_ssim(pred.clone(), gt, image_means(map.clone()));
     let inside: Vec<bool> = host(region.clone()).iter().map(|&r| r > 0.5).collect();
     let plane = height * width;
     let diff = host(pred.clone().sub(truth.clone()));
-    let map = ssim_map(pred.clone(), truth.clone());
     let [_, _, map_h, map_w] = map.dims();
     let map = host(map);
     let pasted = pred.mul(region.clone()) + truth.mul(region.neg().add_scalar(1.0));
     let lpips = gt.lpips(pasted);
-    (0..batch)
+    let in_region = (0..batch)
         .map(|b| {
             let inside = &inside[b * plane..(b + 1) * plane];
             let pixels = inside.iter().filter(|&&i| i).count();
@@ -75,7 +85,8 @@ pub fn score_region(pred: Tensor<4>, gt: &GroundTruth<'_>, region: Tensor<4>) ->
                 lpips: lpips[b],
             }
         })
-        .collect()
+        .collect();
+    (whole, in_region)
 }
 
 /// PSNR of each image of a batch over all its pixels with the prediction replaced by `gt` in
@@ -148,8 +159,15 @@ mod tests {
             .enumerate()
             .map(|(i, v)| if i % S < S / 2 { v + 0.3 } else { v + 0.1 })
             .collect();
-        let scores = score_region(image(pred.clone()), &truth(gt.clone()), right_half());
+        let (whole, scores) =
+            score_whole_and_region(image(pred.clone()), &truth(gt.clone()), right_half());
         assert!((scores[0].psnr - 20.0).abs() < 1e-4, "{scores:?}");
+        // The whole images' scores are score_images', to the bit.
+        let alone = crate::score_images(image(pred.clone()), &truth(gt.clone()));
+        assert_eq!(
+            (whole[0].psnr.to_bits(), whole[0].ssim.to_bits()),
+            (alone[0].psnr.to_bits(), alone[0].ssim.to_bits())
+        );
         assert!(scores[0].lpips.is_nan());
 
         // Exact in the region: PSNR infinite whatever happens outside, and SSIM above the
@@ -160,7 +178,7 @@ mod tests {
             .map(|(i, v)| if i % S < S / 2 { 1.0 - v } else { *v })
             .collect();
         let whole = crate::ssim(image(exact.clone()), image(gt.clone()))[0];
-        let scores = score_region(image(exact), &truth(gt.clone()), right_half());
+        let (_, scores) = score_whole_and_region(image(exact), &truth(gt.clone()), right_half());
         assert!(scores[0].psnr.is_infinite(), "{scores:?}");
         assert!(
             scores[0].ssim > whole && scores[0].ssim <= 1.0,
@@ -170,7 +188,7 @@ mod tests {
         // An empty region has nothing to score.
         let device = BackendKind::Ndarray.device().unwrap();
         let none = Tensor::<4>::zeros([1, 1, S, S], &device);
-        let scores = score_region(image(pred), &truth(gt), none);
+        let (_, scores) = score_whole_and_region(image(pred), &truth(gt), none);
         assert!(scores[0].psnr.is_nan() && scores[0].ssim.is_nan());
     }
 

@@ -77,8 +77,17 @@ impl<'a> GroundTruth<'a> {
 /// PSNR, SSIM and LPIPS of each image of a batch, `pred` `[B, 3, H, W]` in [0, 1] against
 /// `gt` (H, W >= [`crate::SSIM_WINDOW`]). LPIPS is NaN where `gt` has no LPIPS features.
 pub fn score_images(pred: Tensor<4>, gt: &GroundTruth<'_>) -> Vec<ImageScores> {
-    let p = psnr(pred.clone(), gt.image.clone());
     let s = ssim(pred.clone(), gt.image.clone());
+    scores_beside_ssim(pred, gt, s)
+}
+
+/// [`score_images`] for a batch whose per-image SSIM `s` the caller has already computed.
+pub(crate) fn scores_beside_ssim(
+    pred: Tensor<4>,
+    gt: &GroundTruth<'_>,
+    s: Vec<f64>,
+) -> Vec<ImageScores> {
+    let p = psnr(pred.clone(), gt.image.clone());
     let l = gt.lpips(pred);
     p.into_iter()
         .zip(s)

@@ -29,6 +29,26 @@ const C2: f32 = 0.03 * 0.03;
 /// # Panics
 /// When the shapes differ or a side is below 11.
 pub fn ssim(pred: Tensor<4>, gt: Tensor<4>) -> Vec<f64> {
+    image_means(ssim_map(pred, gt))
+}
+
+/// Per image, the mean of an SSIM map `[B, C, h, w]` over its channels and windows: the
+/// [`ssim`] of the images it was made from.
+pub fn image_means(map: Tensor<4>) -> Vec<f64> {
+    let [batch, channels, h, w] = map.dims();
+    let count = (channels * h * w) as f64;
+    per_image_sums(map.sum_dim(3), batch)
+        .into_iter()
+        .map(|sum| sum / count)
+        .collect()
+}
+
+/// The SSIM map over the valid region, `[B, C, H - 10, W - 10]`: each window's SSIM, of which
+/// [`ssim`] is the mean.
+///
+/// # Panics
+/// As [`ssim`].
+pub fn ssim_map(pred: Tensor<4>, gt: Tensor<4>) -> Tensor<4> {
     assert_eq!(
         pred.dims(),
         gt.dims(),
@@ -39,18 +59,6 @@ pub fn ssim(pred: Tensor<4>, gt: Tensor<4>) -> Vec<f64> {
         height >= SSIM_WINDOW && width >= SSIM_WINDOW,
         "SSIM: images must be at least {SSIM_WINDOW}x{SSIM_WINDOW}, got {height}x{width}"
     );
-    let map = ssim_map(pred, gt);
-    let [_, _, h, w] = map.dims();
-    let count = (channels * h * w) as f64;
-    per_image_sums(map.sum_dim(3), batch)
-        .into_iter()
-        .map(|sum| sum / count)
-        .collect()
-}
-
-/// The SSIM map over the valid region, `[B, C, H - 10, W - 10]`.
-pub fn ssim_map(pred: Tensor<4>, gt: Tensor<4>) -> Tensor<4> {
-    let [batch, channels, height, width] = pred.dims();
     let n = batch * channels;
     let x = pred.reshape([n, 1, height, width]).sub_scalar(0.5);
     let y = gt.reshape([n, 1, height, width]).sub_scalar(0.5);

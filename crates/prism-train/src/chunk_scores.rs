@@ -15,7 +15,7 @@ use prism_core::images::HostImages;
 use prism_core::phases::{PhaseTimes, credit, recorded};
 use prism_data::{PrismBatcher, RegionMethod, Sample, SampleDataset};
 use prism_losses::{
-    GroundTruth, ImageScores, Lpips, SpeckleSums, psnr_region_filled, score_images, score_region,
+    GroundTruth, ImageScores, Lpips, SpeckleSums, psnr_region_filled, score_whole_and_region,
     speckle_sums,
 };
 use prism_model::Prism;
@@ -212,8 +212,8 @@ impl Truth<'_> {
     /// `image`'s scores, and `image` on the host.
     fn score(&self, image: Tensor<4>) -> (MethodBatch, HostImages) {
         let gt = self.scores.image.clone();
-        let full = score_images(image.clone(), &self.scores);
-        let region = score_region(image.clone(), &self.scores, self.region.clone());
+        let (full, region) =
+            score_whole_and_region(image.clone(), &self.scores, self.region.clone());
         let filled = psnr_region_filled(image.clone(), gt, self.region.clone());
         let host = HostImages::from_tensor(image);
         let speckle = self
