@@ -10,10 +10,11 @@ use crate::{GroundTruth, ImageScores, ssim_map};
 /// Half the SSIM window: an SSIM map pixel `(y, x)` is the window centred at `(y + 5, x + 5)`.
 const SSIM_RADIUS: usize = crate::SSIM_WINDOW / 2;
 
-/// PSNR, SSIM and LPIPS of each image of a batch in `region` (`[B, 1, H, W]`, 1 inside, 0
-/// outside), `pred` `[B, 3, H, W]` in [0, 1] against `gt`:
+/// The scores of each image of a batch, `pred` `[B, 3, H, W]` in [0, 1] against `gt`: on the
+/// whole image ([`crate::score_images`]'s, to the bit), and in `region` (`[B, 1, H, W]`, 1
+/// inside, 0 outside). Both read one SSIM map, computed once. In the region:
 /// - PSNR from the mean squared error over the region's pixels and channels;
-/// - SSIM the mean of the SSIM map (as [`crate::ssim`]) over the windows centred in the
+/// - SSIM the mean of the SSIM map (as [`crate::ssim()`]) over the windows centred in the
 ///   region;
 /// - LPIPS the distance to `gt` of `gt` with the prediction pasted in on the region: the
 ///   perceptual error of the region alone, measured on the whole image (NaN where `gt` has no
@@ -21,9 +22,6 @@ const SSIM_RADIUS: usize = crate::SSIM_WINDOW / 2;
 ///
 /// An image whose region is empty scores NaN (no pixel to score), as does SSIM when no
 /// window is centred in the region.
-///
-/// Returns the scores of the whole images too ([`crate::score_images`], to the bit): both read
-/// the SSIM map, which is computed once.
 pub fn score_whole_and_region(
     pred: Tensor<4>,
     gt: &GroundTruth<'_>,

@@ -1,7 +1,9 @@
 //! The one scoring pipeline of prism: PSNR, SSIM and LPIPS of each image of a batch of
 //! predictions against their ground truth, and their means. Validation during training,
 //! `prism evaluate` (checkpoint and `--pred/--gt`), `prism metrics` and the quick start all
-//! score through [`score_images`], so their numbers agree.
+//! score through [`score_images`] (`prism evaluate` through
+//! [`crate::score_whole_and_region`], which adds the disoccluded region's scores to the same
+//! computation), so their numbers agree.
 
 use burn::tensor::Tensor;
 use serde::{Deserialize, Deserializer, Serialize};
