@@ -442,7 +442,7 @@ pub fn composite_backward(
 /// The pixels of one Gaussian's box in a tile that its rows' spans keep, packed densely in
 /// row order, with their offsets from its centre and their [`alpha_at`] values: a Gaussian
 /// covers about 5 columns of each of about 4 rows of a tile, so packed, its alphas take about
-/// a third of the vectors that a row of [`RowAlphas`] each would.
+/// half the vectors that a row of [`RowAlphas`] each would.
 struct BoxPixels {
     len: usize,
     /// Tile-local pixel index `ly * tw + lx`.
@@ -500,8 +500,8 @@ impl BoxPixels {
 }
 
 /// One tile of [`composite_backward`]: the gradient slots of its list's Gaussians, in list
-/// order. Each Gaussian's drawn pixels are packed first ([`BoxPixels`]), their alphas computed
-/// as vectors, then undone one pixel at a time in row order. Compiled per CPU as
+/// order. The pixels of each Gaussian's row spans are packed first ([`BoxPixels`]), their alphas
+/// computed as vectors, then undone one pixel at a time in row order. Compiled per CPU as
 /// [`composite_tile`] is.
 #[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]
 fn backward_tile(
@@ -671,6 +671,57 @@ mod tests {
         assert!(
             drawn > 10_000 && smaller > 100,
             "{drawn} drawn, {smaller} smaller boxes"
+        );
+    }
+
+    /// Packed, every pixel of a Gaussian's row spans gets the alpha, Gaussian value and
+    /// unclamped alpha that its row's `RowAlphas` gives it, to the bit.
+    #[test]
+    fn packed_pixels_have_their_rows_alphas() {
+        let mut rand = uniform(4321);
+        let mut pixels = BoxPixels::new();
+        let (mut packed, mut drawn) = (0, 0);
+        for _ in 0..200 {
+            let (_, conic) = random_covariance(&mut rand);
+            let opacity = 0.003 + rand();
+            let p = Projected {
+                u: 8.0 + 16.0 * rand(),
+                v: 8.0 + 16.0 * rand(),
+                depth: 1.0,
+                conic,
+                opacity,
+                support: support_power(opacity),
+                extent: [0.0; 2],
+            };
+            // The tile at (16, 16), where the Gaussian's centre is near its top left.
+            let (x0, y0) = (TILE_SIZE, TILE_SIZE);
+            let rows = RowSpans::of(&p);
+            let mut expected = Vec::new();
+            pixels.clear();
+            for ly in 0..TILE_SIZE {
+                let dy = (y0 + ly) as f32 + 0.5 - p.v;
+                let Some((first, last)) = rows.span(dy, x0, 0, TILE_SIZE - 1) else {
+                    continue;
+                };
+                let dx = (x0 + first) as f32 + 0.5 - p.u;
+                let row = RowAlphas::of(&p, (first, last), dx, dy);
+                for lx in first..=last {
+                    pixels.push(ly * TILE_SIZE + lx, dx + lane_offset(lx, first), dy);
+                    expected.push([row.alpha[lx], row.gauss[lx], row.raw[lx]].map(f32::to_bits));
+                }
+            }
+            pixels.alphas(&p);
+            assert_eq!(pixels.len, expected.len());
+            for (q, want) in expected.iter().enumerate() {
+                let got = [pixels.alpha[q], pixels.gauss[q], pixels.raw[q]].map(f32::to_bits);
+                assert_eq!(&got, want, "pixel {} of the list", q);
+                drawn += usize::from(pixels.alpha[q] != 0.0);
+            }
+            packed += pixels.len;
+        }
+        assert!(
+            packed > 5_000 && drawn > 2_000,
+            "{packed} packed, {drawn} drawn"
         );
     }
 
