@@ -123,22 +123,34 @@ impl Validator {
             });
             for (chunk, (batch, pred, scores)) in group.iter().zip(scored) {
                 if let Some(rows) = grid_rows.as_deref_mut() {
-                    let [_, c, h, w] = pred.dims();
-                    for (i, sample) in chunk.iter().enumerate() {
-                        if rows.len() < GRID_ROWS && sample.subject == self.samples[0].subject {
-                            let row = |t: &Tensor<4>| t.clone().slice([i..i + 1, 0..c, 0..h, 0..w]);
-                            rows.push([
-                                row(&batch.source_image),
-                                row(&pred),
-                                row(&batch.target_image),
-                            ]);
-                        }
-                    }
+                    self.add_grid_rows(rows, chunk, &batch, &pred);
                 }
                 tally.add_batch(chunk, &scores);
             }
         }
         tally.finish().mean()
+    }
+
+    /// Adds the views of `chunk` (batched as `batch`, predicted as `pred`) that belong to the
+    /// first subject to `rows` as (source, prediction, ground truth), up to [`GRID_ROWS`].
+    fn add_grid_rows(
+        &self,
+        rows: &mut Vec<[Tensor<4>; 3]>,
+        chunk: &[Sample],
+        batch: &PrismBatch,
+        pred: &Tensor<4>,
+    ) {
+        let [_, c, h, w] = pred.dims();
+        for (i, sample) in chunk.iter().enumerate() {
+            if rows.len() < GRID_ROWS && sample.subject == self.samples[0].subject {
+                let row = |t: &Tensor<4>| t.clone().slice([i..i + 1, 0..c, 0..h, 0..w]);
+                rows.push([
+                    row(&batch.source_image),
+                    row(pred),
+                    row(&batch.target_image),
+                ]);
+            }
+        }
     }
 }
 

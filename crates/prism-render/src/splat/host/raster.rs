@@ -209,7 +209,7 @@ struct RowAlphas {
 impl RowAlphas {
     /// `dx` is the offset of column `first`'s centre from the Gaussian's centre; column `i`'s
     /// offset is `dx + (i - first)`, so that every lane of the span sees the same offset in the
-    /// forward and the reverse pass.
+    /// forward pass as its pixel in the reverse pass's [`BoxPixels`].
     #[inline(always)]
     fn of(p: &Projected, (first, last): (usize, usize), dx: f32, dy: f32) -> Self {
         let mut s = Self {
