@@ -139,8 +139,16 @@ fn col2im(cols: &[f32], d: &ConvDims, dx: &mut [f32]) {
         let (x0, x1, ix0) = valid_range(w, ow, j, sw, d.padding[1]);
         for (k, oy) in (y0..y1).enumerate() {
             let dst = &mut dx[(c * h + iy0 + k * sh) * w..][..w];
-            for (t, &v) in src[oy * ow + x0..oy * ow + x1].iter().enumerate() {
-                dst[ix0 + t * sw] += v;
+            let src = &src[oy * ow + x0..oy * ow + x1];
+            if sw == 1 {
+                // Contiguous on both sides, so the adds run as vectors (the strided loop
+                // below runs one value at a time); the same adds, so the same values.
+                let dst = &mut dst[ix0..ix0 + src.len()];
+                dst.iter_mut().zip(src).for_each(|(d, &v)| *d += v);
+            } else {
+                for (t, &v) in src.iter().enumerate() {
+                    dst[ix0 + t * sw] += v;
+                }
             }
         }
     }

@@ -104,11 +104,15 @@ fn gelu<B: HostTensors>(x: FloatTensor<B>) -> FloatTensor<B> {
     B::map(x, elementwise::gelu, elementwise::gelu_of)
 }
 
-/// `grad * GELU'(x)` through the host kernel.
+/// `grad * GELU'(x)` through the host kernel, in place of `grad` where no other tensor holds
+/// it.
 fn gelu_backward<B: HostTensors>(x: FloatTensor<B>, grad: FloatTensor<B>) -> FloatTensor<B> {
-    let (shape, device) = (x.shape(), x.device());
-    let dx = elementwise::gelu_backward(&B::values(x), &B::values(grad));
-    B::tensor(dx, shape, &device)
+    let x = B::values(x);
+    B::map(
+        grad,
+        |grad| elementwise::gelu_backward_in_place(&x, grad),
+        |grad| elementwise::gelu_backward(&x, grad),
+    )
 }
 
 /// A normalisation through the host kernel.
