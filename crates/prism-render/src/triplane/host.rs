@@ -4,6 +4,7 @@
 //! Planes are taken channel-last here (`[3, R, R, C]`) so that one bilinear tap reads `C`
 //! contiguous values; the tensor layout `[3, C, R, R]` is transposed on the way in and out.
 
+use multiversion::multiversion;
 use rayon::prelude::*;
 
 /// The two coordinate axes each plane is indexed by: plane 0 `(x, y)`, plane 1 `(x, z)`,
@@ -110,35 +111,13 @@ pub fn forward(planes_last: &[f32], coords: &[f32], dims: Dims) -> Vec<f32> {
         batch,
         points,
         channels: c,
-        resolution: r,
+        ..
     } = dims;
     // Point-major results first, transposed per batch element afterwards.
     let mut rows = vec![0.0f32; batch * points * c];
     rows.par_chunks_mut(CHUNK * c)
         .enumerate()
-        .for_each(|(chunk, out)| {
-            for (k, value) in out.chunks_exact_mut(c).enumerate() {
-                let global = chunk * CHUNK + k;
-                let (b, s) = (global / points, global % points);
-                for (p, axes) in PLANE_AXES.iter().enumerate() {
-                    let u = Tap::new(coord(coords, dims, b, s, axes[0]), r);
-                    let v = Tap::new(coord(coords, dims, b, s, axes[1]), r);
-                    let texel = |row: usize, col: usize| {
-                        let start = (p * r * r + row * r + col) * c;
-                        &planes_last[start..start + c]
-                    };
-                    let (t00, t01) = (texel(v.i0, u.i0), texel(v.i0, u.i1));
-                    let (t10, t11) = (texel(v.i1, u.i0), texel(v.i1, u.i1));
-                    let w00 = (1.0 - v.frac) * (1.0 - u.frac);
-                    let w01 = (1.0 - v.frac) * u.frac;
-                    let w10 = v.frac * (1.0 - u.frac);
-                    let w11 = v.frac * u.frac;
-                    for ch in 0..c {
-                        value[ch] += w00 * t00[ch] + w01 * t01[ch] + w10 * t10[ch] + w11 * t11[ch];
-                    }
-                }
-            }
-        });
+        .for_each(|(chunk, out)| sample_chunk(planes_last, coords, dims, chunk * CHUNK, out));
     let mut out = vec![0.0f32; batch * c * points];
     out.par_chunks_mut(c * points)
         .enumerate()
@@ -151,6 +130,35 @@ pub fn forward(planes_last: &[f32], coords: &[f32], dims: Dims) -> Vec<f32> {
             }
         });
     out
+}
+
+/// The points from `first` on, one row of `C` values each in `out` (zeros on entry): the sum
+/// over the planes of each point's bilinear taps. Compiled for AVX-512 and AVX2 too, chosen
+/// at run time: a tap's channels are a few vectors of lanes.
+#[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]
+fn sample_chunk(planes_last: &[f32], coords: &[f32], dims: Dims, first: usize, out: &mut [f32]) {
+    let (c, r, points) = (dims.channels, dims.resolution, dims.points);
+    for (k, value) in out.chunks_exact_mut(c).enumerate() {
+        let global = first + k;
+        let (b, s) = (global / points, global % points);
+        for (p, axes) in PLANE_AXES.iter().enumerate() {
+            let u = Tap::new(coord(coords, dims, b, s, axes[0]), r);
+            let v = Tap::new(coord(coords, dims, b, s, axes[1]), r);
+            let texel = |row: usize, col: usize| {
+                let start = (p * r * r + row * r + col) * c;
+                &planes_last[start..start + c]
+            };
+            let (t00, t01) = (texel(v.i0, u.i0), texel(v.i0, u.i1));
+            let (t10, t11) = (texel(v.i1, u.i0), texel(v.i1, u.i1));
+            let w00 = (1.0 - v.frac) * (1.0 - u.frac);
+            let w01 = (1.0 - v.frac) * u.frac;
+            let w10 = v.frac * (1.0 - u.frac);
+            let w11 = v.frac * u.frac;
+            for ch in 0..c {
+                value[ch] += w00 * t00[ch] + w01 * t01[ch] + w10 * t10[ch] + w11 * t11[ch];
+            }
+        }
+    }
 }
 
 /// Reverse pass: from `grad_out` `[B, C, S]`, the gradients of the planes (`[3, C, R, R]`,
