@@ -104,11 +104,18 @@ fn im2col(x: &[f32], d: &ConvDims, cols: &mut [f32]) {
     let [oh, ow] = d.output_size().expect("a valid convolution");
     let [kh, kw] = d.kernel;
     let [sh, sw] = d.stride;
+    // A stride of 1 and an output as wide as the input ("same" padding): each row of the
+    // buffer is the input's plane shifted, one copy.
+    let shifted_planes = sh == 1 && sw == 1 && ow == w;
     let rows = cols.chunks_exact_mut(oh * ow);
     for (row, dst) in rows.enumerate() {
         let (c, i, j) = (row / (kh * kw), row / kw % kh, row % kw);
         let (y0, y1, iy0) = valid_range(h, oh, i, sh, d.padding[0]);
         let (x0, x1, ix0) = valid_range(w, ow, j, sw, d.padding[1]);
+        if shifted_planes {
+            shifted_plane(&x[(c * h + iy0) * w + ix0..], ow, (y0, y1), (x0, x1), dst);
+            continue;
+        }
         dst[..y0 * ow].fill(0.0);
         dst[y1 * ow..].fill(0.0);
         for (k, oy) in (y0..y1).enumerate() {
@@ -124,6 +131,31 @@ fn im2col(x: &[f32], d: &ConvDims, cols: &mut [f32]) {
                 }
             }
         }
+    }
+}
+
+/// One row of [`im2col`]'s buffer (`dst`, rows of `width`) where the input rows are `width`
+/// wide too and the stride is 1: output pixel `(oy, ox)` of rows `y0..y1` and columns `x0..x1`
+/// reads `src[(oy - y0) width + ox - x0]`, so the whole window is one copy; the columns
+/// outside `x0..x1` (copied over with the rows' neighbours) and the rows outside `y0..y1` are
+/// zeroed after it.
+fn shifted_plane(
+    src: &[f32],
+    width: usize,
+    (y0, y1): (usize, usize),
+    (x0, x1): (usize, usize),
+    dst: &mut [f32],
+) {
+    if y0 >= y1 || x0 >= x1 {
+        dst.fill(0.0);
+        return;
+    }
+    let (start, end) = (y0 * width + x0, (y1 - 1) * width + x1);
+    dst[start..end].copy_from_slice(&src[..end - start]);
+    dst[..start].fill(0.0);
+    dst[end..].fill(0.0);
+    for oy in y0..y1 - 1 {
+        dst[oy * width + x1..(oy + 1) * width + x0].fill(0.0);
     }
 }
 
@@ -321,7 +353,37 @@ mod tests {
             d(2, 4, 3, [5, 4], [1, 1], [1, 1], [0, 0]),
             d(1, 2, 2, [2, 3], [3, 3], [1, 1], [1, 1]),
             d(2, 1, 2, [6, 5], [3, 2], [1, 2], [0, 1]),
+            d(1, 2, 3, [6, 7], [5, 5], [1, 1], [2, 2]),
+            d(1, 2, 2, [4, 1], [3, 3], [1, 1], [1, 1]),
         ]
+    }
+
+    /// Every value of the im2col buffer is its tap's input pixel, or 0 in the padding, exactly:
+    /// row `(c, i, j)`, column `(oy, ox)` holds `x[c, oy s + i - p, ox s + j - p]`.
+    #[test]
+    fn im2col_holds_each_taps_input_value() {
+        for d in cases() {
+            let x = values(d.image(), 9);
+            let [h, w] = d.size;
+            let [oh, ow] = d.output_size().unwrap();
+            let [kh, kw] = d.kernel;
+            let mut cols = vec![f32::NAN; d.taps() * d.pixels()];
+            im2col(&x, &d, &mut cols);
+            for (row, values) in cols.chunks_exact(oh * ow).enumerate() {
+                let (c, i, j) = (row / (kh * kw), row / kw % kh, row % kw);
+                for (o, &v) in values.iter().enumerate() {
+                    let iy = (o / ow * d.stride[0] + i) as isize - d.padding[0] as isize;
+                    let ix = (o % ow * d.stride[1] + j) as isize - d.padding[1] as isize;
+                    let inside = (0..h as isize).contains(&iy) && (0..w as isize).contains(&ix);
+                    let want = if inside {
+                        x[(c * h + iy as usize) * w + ix as usize]
+                    } else {
+                        0.0
+                    };
+                    assert_eq!(v.to_bits(), want.to_bits(), "{d:?} row {row} pixel {o}");
+                }
+            }
+        }
     }
 
     #[test]
