@@ -113,7 +113,12 @@ fn im2col(x: &[f32], d: &ConvDims, cols: &mut [f32]) {
         let (y0, y1, iy0) = valid_range(h, oh, i, sh, d.padding[0]);
         let (x0, x1, ix0) = valid_range(w, ow, j, sw, d.padding[1]);
         if shifted_planes {
-            shifted_plane(&x[(c * h + iy0) * w + ix0..], ow, (y0, y1), (x0, x1), dst);
+            // An empty window's first input pixel may lie past the input's end.
+            if y0 < y1 && x0 < x1 {
+                shifted_plane(&x[(c * h + iy0) * w + ix0..], ow, (y0, y1), (x0, x1), dst);
+            } else {
+                dst.fill(0.0);
+            }
             continue;
         }
         dst[..y0 * ow].fill(0.0);
@@ -136,9 +141,9 @@ fn im2col(x: &[f32], d: &ConvDims, cols: &mut [f32]) {
 
 /// One row of [`im2col`]'s buffer (`dst`, rows of `width`) where the input rows are `width`
 /// wide too and the stride is 1: output pixel `(oy, ox)` of rows `y0..y1` and columns `x0..x1`
-/// reads `src[(oy - y0) width + ox - x0]`, so the whole window is one copy; the columns
-/// outside `x0..x1` (copied over with the rows' neighbours) and the rows outside `y0..y1` are
-/// zeroed after it.
+/// (a window that is not empty) reads `src[(oy - y0) width + ox - x0]`, so the whole window is
+/// one copy; the columns outside `x0..x1` (copied over with the rows' neighbours) and the rows
+/// outside `y0..y1` are zeroed after it.
 fn shifted_plane(
     src: &[f32],
     width: usize,
@@ -146,10 +151,6 @@ fn shifted_plane(
     (x0, x1): (usize, usize),
     dst: &mut [f32],
 ) {
-    if y0 >= y1 || x0 >= x1 {
-        dst.fill(0.0);
-        return;
-    }
     let (start, end) = (y0 * width + x0, (y1 - 1) * width + x1);
     dst[start..end].copy_from_slice(&src[..end - start]);
     dst[..start].fill(0.0);
@@ -355,6 +356,7 @@ mod tests {
             d(2, 1, 2, [6, 5], [3, 2], [1, 2], [0, 1]),
             d(1, 2, 3, [6, 7], [5, 5], [1, 1], [2, 2]),
             d(1, 2, 2, [4, 1], [3, 3], [1, 1], [1, 1]),
+            d(1, 2, 2, [1, 1], [3, 3], [1, 1], [1, 1]),
         ]
     }
 
