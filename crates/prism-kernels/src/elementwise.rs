@@ -32,7 +32,9 @@ pub fn gelu_backward(x: &[f32], grad: &[f32]) -> Vec<f32> {
     );
     filled(x.len(), CHUNK, |i, dx| {
         let chunk = i * CHUNK..i * CHUNK + dx.len();
-        gelu_backward_chunk(&x[chunk.clone()], &grad[chunk], dx);
+        // Copied in cache, then the in-place kernel: one kernel for both paths.
+        dx.copy_from_slice(&grad[chunk.clone()]);
+        gelu_backward_chunk_in_place(&x[chunk], dx);
     })
 }
 
@@ -60,13 +62,6 @@ fn gelu_chunk(x: &mut [f32]) {
 fn gelu_chunk_into(x: &[f32], y: &mut [f32]) {
     for (y, &x) in y.iter_mut().zip(x) {
         *y = math::gelu(x);
-    }
-}
-
-#[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]
-fn gelu_backward_chunk(x: &[f32], grad: &[f32], dx: &mut [f32]) {
-    for ((dx, &x), &g) in dx.iter_mut().zip(x).zip(grad) {
-        *dx = g * math::gelu_derivative(x);
     }
 }
 
