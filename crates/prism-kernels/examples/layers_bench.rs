@@ -3,7 +3,8 @@
 //! flex. The convolutions at the shapes of the point branch's DPT head (trained: input, weight
 //! and bias gradients) and of LPIPS's AlexNet at 128 px (frozen: the input's gradient alone),
 //! batch 4; the linear layers at the small config's blocks (4 sequences of 512 tokens, width
-//! 128: `qkv`, `out`, the MLP's two).
+//! 128: `qkv`, `out`, the MLP's two); `prism_kernels::gelu` against Burn's `gelu` at the
+//! MLP's hidden size.
 //!
 //! ```bash
 //! cargo run --release --example layers_bench -- [--iters 9]
@@ -30,6 +31,8 @@ struct Case {
 enum Layer {
     Conv(Conv2d),
     Linear(Linear),
+    /// GELU, on input of the row's shape.
+    Gelu,
 }
 
 impl Layer {
@@ -41,13 +44,16 @@ impl Layer {
             (Self::Conv(l), false) => l.forward(x),
             (Self::Linear(l), true) => prism_kernels::linear(l, x),
             (Self::Linear(l), false) => l.forward(x),
+            (Self::Gelu, true) => prism_kernels::gelu(x),
+            (Self::Gelu, false) => burn::tensor::activation::gelu(x),
         }
     }
 
-    fn weight(&self) -> Tensor<4> {
+    fn weight(&self) -> Option<Tensor<4>> {
         match self {
-            Self::Conv(l) => l.weight.val(),
-            Self::Linear(l) => l.weight.val().unsqueeze(),
+            Self::Conv(l) => Some(l.weight.val()),
+            Self::Linear(l) => Some(l.weight.val().unsqueeze()),
+            Self::Gelu => None,
         }
     }
 }
@@ -99,6 +105,11 @@ fn cases(device: &Device) -> Vec<Case> {
         linear("block out 128->128, 4x512 tokens", 128, 128),
         linear("block MLP in 128->512, 4x512 tokens", 128, 512),
         linear("block MLP out 512->128, 4x512 tokens", 512, 128),
+        Case {
+            name: "GELU of the blocks' MLP, 4x512 tokens x 512",
+            layer: Layer::Gelu,
+            shape: [4, 1, 512, 512],
+        },
     ]
 }
 
@@ -122,7 +133,7 @@ fn main() {
             let y = layer.run(x.clone(), fused);
             let grads = (y.clone() * y).sum().backward();
             let _ = x.grad(&grads).expect("x is tracked").into_data();
-            if let Some(dw) = layer.weight().grad(&grads) {
+            if let Some(dw) = layer.weight().and_then(|w| w.grad(&grads)) {
                 let _ = dw.into_data();
             }
             start.elapsed().as_secs_f64() * 1e3
