@@ -7,13 +7,15 @@
 //! Layout: `q`, `k`, `v`, `o` and their gradients are `[heads, T, d_h]` row-major, where
 //! `heads` is batch times heads; `lse` is `[heads, T]`.
 
+use std::mem::MaybeUninit;
+
 use multiversion::multiversion;
 use rayon::prelude::*;
 
 use crate::bf16::Bf16Kernel;
-use crate::buffer::filled_with;
+use crate::buffer::{Span, Written, written, zeroed};
 use crate::math;
-use crate::matrix::{View, matmul};
+use crate::matrix::{View, matmul, matmul_into};
 
 /// Query rows per block.
 const BLOCK: usize = 64;
@@ -72,14 +74,14 @@ pub fn forward(q: &[f32], k: &[f32], v: &[f32], dims: Dims, scale: f32) -> (Vec<
                 scale,
             );
             exponentials(p, tokens, 1.0, lse, inv);
-            matmul(
+            let o = matmul_into(
                 o,
-                false,
                 View::rows(p, rows, tokens),
                 View::rows(v, tokens, head_dim),
                 1.0,
             );
             divide_rows(o, head_dim, inv);
+            Written::of(o)
         },
     )
 }
@@ -133,22 +135,25 @@ fn forward_amx(q: &[f32], k: &[f32], v: &[f32], dims: Dims, scale: f32) -> (Vec<
             product(&tiles, packed, keys, p, tokens, false);
             exponentials(p, tokens, scale, lse, inv);
             packed.pack(View::rows(p, rows, tokens), 0, rows, 0, tokens);
+            let o = zeroed(o);
             product(&tiles, packed, values, o, head_dim, false);
             divide_rows(o, head_dim, inv);
+            Written::of(o)
         },
     )
 }
 
 /// The skeleton of the forward passes: checks the sizes, allocates `(o, lse)`, and runs
 /// `block(head's, b, o, lse, scratch)` on every block `b` of [`BLOCK`] query rows of every
-/// head in parallel, where `o` and `lse` are the block's rows, `head's` what `prepare(h)`
-/// made once for the head's blocks, and `scratch` a worker thread's, made by `scratch()`.
+/// head in parallel, where `o` (unwritten: `block` writes it whole) and `lse` are the block's
+/// rows, `head's` what `prepare(h)` made once for the head's blocks, and `scratch` a worker
+/// thread's, made by `scratch()`.
 fn each_block<H, S>(
     inputs: [&[f32]; 3],
     dims: Dims,
     prepare: impl Fn(usize) -> H + Sync + Send,
     scratch: impl Fn() -> S + Sync + Send,
-    block: impl Fn(&H, usize, &mut [f32], &mut [f32], &mut S) + Sync + Send,
+    block: impl Fn(&H, usize, &mut [MaybeUninit<f32>], &mut [f32], &mut S) -> Written + Sync + Send,
 ) -> (Vec<f32>, Vec<f32>)
 where
     H: Sync,
@@ -162,14 +167,17 @@ where
     if dims.heads * dims.per_head() == 0 {
         return (Vec::new(), vec![0.0; dims.heads * tokens]);
     }
-    let (o, lse) = filled_with(dims.heads * dims.per_head(), dims.per_head(), |h, o| {
+    let (o, lse) = written(dims.heads * dims.per_head(), dims.per_head(), |h, o| {
         let head = prepare(h);
         let mut lse = vec![0.0; tokens];
-        o.par_chunks_mut(BLOCK * head_dim)
+        let span = Span::of(o);
+        let blocks: Vec<Written> = o
+            .par_chunks_mut(BLOCK * head_dim)
             .zip(lse.par_chunks_mut(BLOCK))
             .enumerate()
-            .for_each_init(&scratch, |s, (b, (o, lse))| block(&head, b, o, lse, s));
-        lse
+            .map_init(&scratch, |s, (b, (o, lse))| block(&head, b, o, lse, s))
+            .collect();
+        (Written::joined(span, blocks), lse)
     });
     (o, lse.concat())
 }
@@ -222,10 +230,15 @@ pub fn backward(
         return (dq, dk, dv);
     }
     let per_head = dims.per_head();
+    // One pair of score buffers per worker thread, reused by its heads (gemm overwrites them).
+    let scratch = || {
+        let len = BLOCK.min(tokens) * tokens;
+        (vec![0.0; len], vec![0.0; len])
+    };
     dq.par_chunks_mut(per_head)
         .zip(dk.par_chunks_mut(per_head).zip(dv.par_chunks_mut(per_head)))
         .enumerate()
-        .for_each(|(h, (dq, (dk, dv)))| {
+        .for_each_init(scratch, |(p, ds), (h, (dq, (dk, dv)))| {
             let span = h * per_head..(h + 1) * per_head;
             let (q, k, v) = (&q[span.clone()], &k[span.clone()], &v[span.clone()]);
             let (o, grad) = (&o[span.clone()], &grad[span]);
@@ -233,8 +246,6 @@ pub fn backward(
             // `k^T` and `v^T` row-major, shared by the head's blocks.
             let keys = View::transposed(k, head_dim, tokens).to_rows();
             let values = View::transposed(v, head_dim, tokens).to_rows();
-            let mut p = vec![0.0; BLOCK.min(tokens) * tokens];
-            let mut ds = vec![0.0; p.len()];
             for start in (0..tokens).step_by(BLOCK) {
                 let rows = BLOCK.min(tokens - start);
                 let block = start * head_dim..(start + rows) * head_dim;

@@ -15,7 +15,8 @@
 
 use rayon::prelude::*;
 
-use crate::matrix::{View, matmul};
+use crate::buffer::{Written, written_init, zeroed};
+use crate::matrix::{View, matmul, matmul_into};
 
 /// Sizes of a convolution call.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -193,20 +194,20 @@ pub fn forward(x: &[f32], weight: &[f32], bias: &[f32], d: ConvDims) -> Vec<f32>
     d.check(x.len(), weight.len());
     assert_eq!(bias.len(), d.outputs, "conv: bias size");
     let (taps, pixels) = (d.taps(), d.pixels());
-    let mut y = vec![0.0f32; d.batch * d.outputs * pixels];
-    if y.is_empty() || taps == 0 {
-        return y;
+    let len = d.batch * d.outputs * pixels;
+    if len == 0 || taps == 0 {
+        return vec![0.0; len];
     }
     let w = View::rows(weight, d.outputs, taps);
-    y.par_chunks_mut(d.outputs * pixels)
-        .zip(x.par_chunks(d.image()))
-        .for_each_init(Vec::new, |cols, (y, x)| {
-            let cols = image_cols(x, &d, cols);
-            matmul(y, false, w, View::rows(cols, taps, pixels), 1.0);
-            for (row, &b) in y.chunks_exact_mut(pixels).zip(bias) {
-                row.iter_mut().for_each(|v| *v += b);
-            }
-        });
+    let image = d.image();
+    let (y, _) = written_init(len, d.outputs * pixels, Vec::new, |cols, i, y| {
+        let cols = image_cols(&x[i * image..][..image], &d, cols);
+        let y = matmul_into(y, w, View::rows(cols, taps, pixels), 1.0);
+        for (row, &b) in y.chunks_exact_mut(pixels).zip(bias) {
+            row.iter_mut().for_each(|v| *v += b);
+        }
+        (Written::of(y), ())
+    });
     y
 }
 
@@ -247,51 +248,79 @@ pub fn backward(
         d.batch * d.outputs * pixels,
         "conv: gradient size"
     );
-    let mut dx = vec![0.0f32; x.len()];
-    let mut dw = vec![0.0f32; d.outputs * taps];
-    let mut db = vec![0.0f32; d.outputs];
-    if pixels > 0 && taps > 0 {
-        let w = View::rows(weight, d.outputs, taps);
-        // Per image: its input gradient in place, and its own weight and bias gradients.
-        let per_image: Vec<(Vec<f32>, Vec<f32>)> = dx
-            .par_chunks_mut(d.image().max(1))
-            .zip(x.par_chunks(d.image().max(1)))
-            .zip(dy.par_chunks(d.outputs * pixels))
-            .map_init(Vec::new, |cols, ((dx, x), dy)| {
-                let dy_view = View::rows(dy, d.outputs, pixels);
-                if wanted.input {
-                    if d.pointwise() {
-                        matmul(dx, false, w.t(), dy_view, 1.0);
-                    } else {
-                        cols.resize(taps * pixels, 0.0);
-                        matmul(cols, false, w.t(), dy_view, 1.0);
-                        col2im(cols, &d, dx);
-                    }
-                }
-                if !wanted.weight {
-                    return Default::default();
-                }
-                let cols = image_cols(x, &d, cols);
-                let mut dw = vec![0.0f32; d.outputs * taps];
-                let transposed = View::transposed(cols, pixels, taps);
-                matmul(&mut dw, false, dy_view, transposed, 1.0);
-                (
-                    dw,
-                    dy.chunks_exact(pixels).map(|r| r.iter().sum()).collect(),
-                )
-            })
-            .collect();
-        for (image_dw, image_db) in &per_image {
-            dw.iter_mut().zip(image_dw).for_each(|(a, b)| *a += b);
-            db.iter_mut().zip(image_db).for_each(|(a, b)| *a += b);
-        }
+    let image = d.image().max(1);
+    let (mut dw, mut db) = (vec![0.0f32; d.outputs * taps], vec![0.0f32; d.outputs]);
+    if pixels == 0 || taps == 0 {
+        let dx = if wanted.input {
+            vec![0.0; x.len()]
+        } else {
+            Vec::new()
+        };
+        return (
+            dx,
+            wanted_only(dw, wanted.weight),
+            wanted_only(db, wanted.weight),
+        );
     }
-    let wanted_only = |v: Vec<f32>, wanted: bool| if wanted { v } else { Vec::new() };
+    let w = View::rows(weight, d.outputs, taps);
+    let dy_view = |i: usize| {
+        View::rows(
+            &dy[i * d.outputs * pixels..][..d.outputs * pixels],
+            d.outputs,
+            pixels,
+        )
+    };
+    // One image's own weight and bias gradients (empty where not wanted).
+    let image_weight_grads = |cols: &mut Vec<f32>, i: usize| -> (Vec<f32>, Vec<f32>) {
+        if !wanted.weight {
+            return Default::default();
+        }
+        let cols = image_cols(&x[i * image..][..image], &d, cols);
+        let mut dw = vec![0.0f32; d.outputs * taps];
+        let transposed = View::transposed(cols, pixels, taps);
+        matmul(&mut dw, false, dy_view(i), transposed, 1.0);
+        let db = dy[i * d.outputs * pixels..][..d.outputs * pixels]
+            .chunks_exact(pixels)
+            .map(|r| r.iter().sum())
+            .collect();
+        (dw, db)
+    };
+    // Per image: its input gradient, written whole, and its weight and bias gradients.
+    let (dx, per_image) = if wanted.input {
+        written_init(x.len(), image, Vec::new, |cols, i, dx| {
+            let dx = if d.pointwise() {
+                matmul_into(dx, w.t(), dy_view(i), 1.0)
+            } else {
+                cols.resize(taps * pixels, 0.0);
+                matmul(cols, false, w.t(), dy_view(i), 1.0);
+                let dx = zeroed(dx);
+                col2im(cols, &d, dx);
+                dx
+            };
+            (Written::of(dx), image_weight_grads(cols, i))
+        })
+    } else {
+        let per_image = (0..d.batch)
+            .into_par_iter()
+            .map_init(Vec::new, image_weight_grads)
+            .collect();
+        (Vec::new(), per_image)
+    };
+    // Summed in the images' order: the same bits whatever the threads do.
+    for (image_dw, image_db) in &per_image {
+        dw.iter_mut().zip(image_dw).for_each(|(a, b)| *a += b);
+        db.iter_mut().zip(image_db).for_each(|(a, b)| *a += b);
+    }
     (
-        wanted_only(dx, wanted.input),
+        dx,
         wanted_only(dw, wanted.weight),
         wanted_only(db, wanted.weight),
     )
+}
+
+/// `v` where it was wanted, else empty.
+fn wanted_only(v: Vec<f32>, wanted: bool) -> Vec<f32> {
+    if wanted { v } else { Vec::new() }
 }
 
 #[cfg(test)]

@@ -3,7 +3,9 @@
 use multiversion::multiversion;
 use rayon::prelude::*;
 
-use crate::buffer::filled;
+use std::mem::MaybeUninit;
+
+use crate::buffer::{Written, write_each, written};
 use crate::math;
 
 /// Elements per parallel task: large enough to amortise scheduling, small enough to balance.
@@ -18,9 +20,11 @@ pub fn gelu(x: &mut [f32]) {
 /// an input that must be kept (autodiff keeps it for the reverse pass), where copying it first
 /// and then working in place would be a serial copy and a second pass.
 pub fn gelu_of(x: &[f32]) -> Vec<f32> {
-    filled(x.len(), CHUNK, |i, y| {
-        gelu_chunk_into(&x[i * CHUNK..i * CHUNK + y.len()], y);
+    written(x.len(), CHUNK, |i, y| {
+        let y = gelu_chunk_into(&x[i * CHUNK..i * CHUNK + y.len()], y);
+        (Written::of(y), ())
     })
+    .0
 }
 
 /// `dx = grad * GELU'(x)`.
@@ -30,12 +34,14 @@ pub fn gelu_backward(x: &[f32], grad: &[f32]) -> Vec<f32> {
         grad.len(),
         "gelu_backward: input and gradient sizes differ"
     );
-    filled(x.len(), CHUNK, |i, dx| {
+    written(x.len(), CHUNK, |i, dx| {
         let chunk = i * CHUNK..i * CHUNK + dx.len();
         // Copied in cache, then the in-place kernel: one kernel for both paths.
-        dx.copy_from_slice(&grad[chunk.clone()]);
+        let dx = dx.write_copy_of_slice(&grad[chunk.clone()]);
         gelu_backward_chunk_in_place(&x[chunk], dx);
+        (Written::of(dx), ())
     })
+    .0
 }
 
 /// [`gelu_backward`] in place of `grad`, for a gradient no other tensor holds: no new buffer
@@ -59,10 +65,8 @@ fn gelu_chunk(x: &mut [f32]) {
 }
 
 #[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]
-fn gelu_chunk_into(x: &[f32], y: &mut [f32]) {
-    for (y, &x) in y.iter_mut().zip(x) {
-        *y = math::gelu(x);
-    }
+fn gelu_chunk_into<'y>(x: &[f32], y: &'y mut [MaybeUninit<f32>]) -> &'y mut [f32] {
+    write_each(y, x, math::gelu)
 }
 
 #[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]

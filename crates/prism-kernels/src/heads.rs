@@ -10,9 +10,11 @@
 //! norms, the gathering of a head's rows), and the gradient of `qkv` is written once, in its
 //! own layout.
 
+use std::mem::MaybeUninit;
+
 use crate::attention::{self, Dims};
 use crate::bf16::Bf16Kernel;
-use crate::buffer::{filled, filled_with};
+use crate::buffer::{Written, write_parts, written};
 use crate::linear_attention::{self, FeatureMap};
 use crate::norm::{self, NormKind, rows_per_task};
 
@@ -191,41 +193,52 @@ pub fn backward(
 /// RMSNorm times `gain` when there is one.
 fn split(qkv: &[f32], part: usize, gain: Option<&[f32]>, eps: f32, l: Heads) -> Vec<f32> {
     let d = l.head_dim;
-    filled(l.len(), l.tokens * d, |bh, out| {
-        let (b, h) = (bh / l.heads, bh % l.heads);
-        for (t, dst) in out.chunks_exact_mut(d).enumerate() {
+    head_major(l, |b, h, out| {
+        write_parts(out, d, |t, dst| {
             let x = &qkv[l.joint(b, t, part, h)..][..d];
-            match gain {
+            Written::of(match gain {
                 Some(gain) => norm::forward_rows(NormKind::Rms, x, gain, eps, dst),
-                None => dst.copy_from_slice(x),
-            }
-        }
+                None => dst.write_copy_of_slice(x),
+            })
+        })
     })
+}
+
+/// A head-major `[B H, T, d_h]` buffer, each head's `T x d_h` values written by
+/// `write(b, h, head)` on rayon's threads.
+fn head_major(
+    l: Heads,
+    write: impl Fn(usize, usize, &mut [MaybeUninit<f32>]) -> Written + Sync + Send,
+) -> Vec<f32> {
+    written(l.len(), l.tokens * l.head_dim, |bh, out| {
+        let (b, h) = (bh / l.heads, bh % l.heads);
+        (write(b, h, out), ())
+    })
+    .0
 }
 
 /// The heads' outputs from head-major order `[B H, T, d_h]` to token-major `[B, T, H, d_h]`.
 fn merge(o: &[f32], l: Heads) -> Vec<f32> {
     let (width, d) = (l.width(), l.head_dim);
     let rows = rows_per_task(width);
-    filled(l.len(), rows * width, |task, out| {
-        for (r, row) in out.chunks_exact_mut(width).enumerate() {
-            let bt = task * rows + r;
+    written(l.len(), rows * width, |task, out| {
+        let written = write_parts(out, d, |i, dst| {
+            let (bt, h) = (task * rows + i / l.heads, i % l.heads);
             let (b, t) = (bt / l.tokens, bt % l.tokens);
-            for (h, dst) in row.chunks_exact_mut(d).enumerate() {
-                dst.copy_from_slice(&o[l.head_major(b * l.heads + h, t)..][..d]);
-            }
-        }
+            Written::of(dst.write_copy_of_slice(&o[l.head_major(b * l.heads + h, t)..][..d]))
+        });
+        (written, ())
     })
+    .0
 }
 
 /// A token-major `[B, T, H, d_h]` tensor in head-major order `[B H, T, d_h]`.
 fn unmerge(x: &[f32], l: Heads) -> Vec<f32> {
     let d = l.head_dim;
-    filled(l.len(), l.tokens * d, |bh, out| {
-        let (b, h) = (bh / l.heads, bh % l.heads);
-        for (t, dst) in out.chunks_exact_mut(d).enumerate() {
-            dst.copy_from_slice(&x[l.token_major(b, t, h)..][..d]);
-        }
+    head_major(l, |b, h, out| {
+        write_parts(out, d, |t, dst| {
+            Written::of(dst.write_copy_of_slice(&x[l.token_major(b, t, h)..][..d]))
+        })
     })
 }
 
@@ -240,33 +253,34 @@ fn join(
 ) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
     let (width, d) = (l.width(), l.head_dim);
     let rows = rows_per_task(3 * width);
-    let (dqkv, parts) = filled_with(3 * l.len(), rows * 3 * width, |task, out| {
+    let (dqkv, parts) = written(3 * l.len(), rows * 3 * width, |task, out| {
         let mut dgains = [vec![0.0; d], vec![0.0; d]];
-        for (r, row) in out.chunks_exact_mut(3 * width).enumerate() {
-            let bt = task * rows + r;
+        // Each row is `q`, `k`, `v`, each of them `heads` parts of `d` values.
+        let written = write_parts(out, d, |i, dst| {
+            let (bt, part, h) = (
+                task * rows + i / (3 * l.heads),
+                i / l.heads % 3,
+                i % l.heads,
+            );
             let (b, t) = (bt / l.tokens, bt % l.tokens);
-            for (part, heads) in row.chunks_exact_mut(width).enumerate() {
-                for (h, dst) in heads.chunks_exact_mut(d).enumerate() {
-                    let grad = &grads[part][l.head_major(b * l.heads + h, t)..][..d];
-                    match part {
-                        2 => dst.copy_from_slice(grad),
-                        _ => {
-                            let x = &qkv[l.joint(b, t, part, h)..][..d];
-                            norm::backward_rows(
-                                NormKind::Rms,
-                                x,
-                                gains[part],
-                                grad,
-                                eps,
-                                dst,
-                                &mut dgains[part],
-                            );
-                        }
-                    }
+            let grad = &grads[part][l.head_major(b * l.heads + h, t)..][..d];
+            Written::of(match part {
+                2 => dst.write_copy_of_slice(grad),
+                _ => {
+                    let x = &qkv[l.joint(b, t, part, h)..][..d];
+                    norm::backward_rows(
+                        NormKind::Rms,
+                        x,
+                        gains[part],
+                        grad,
+                        eps,
+                        dst,
+                        &mut dgains[part],
+                    )
                 }
-            }
-        }
-        dgains
+            })
+        });
+        (written, dgains)
     });
     // Summed in the tasks' order: the same bits on any number of threads.
     let (mut dq_gain, mut dk_gain) = (vec![0.0; d], vec![0.0; d]);

@@ -18,8 +18,8 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::attention::Dims;
-use crate::buffer::filled_with;
-use crate::matrix::{View, matmul};
+use crate::buffer::{Written, written};
+use crate::matrix::{View, matmul, matmul_into};
 
 /// The feature map `phi` of linear attention, applied to queries and keys.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -115,14 +115,13 @@ pub fn forward(
         dims.check(name, x.len());
     }
     let per_head = dims.per_head();
-    let (o, den) = filled_with(dims.heads * per_head, per_head.max(1), |h, o| {
+    let (o, den) = written(dims.heads * per_head, per_head.max(1), |h, o| {
         let span = h * per_head..(h + 1) * per_head;
         let (q, k, v) = (&q[span.clone()], &k[span.clone()], &v[span]);
         let f = Features::of(q, k, v, map, dims);
         let d = dims.head_dim;
-        matmul(
+        let o = matmul_into(
             o,
-            false,
             View::rows(&f.q, dims.tokens, d),
             View::rows(&f.kv, d, d),
             1.0,
@@ -132,7 +131,7 @@ pub fn forward(
             *den = f.den(i, eps);
             row.iter_mut().for_each(|x| *x /= *den);
         }
-        den
+        (Written::of(o), den)
     });
     (o, den.concat())
 }

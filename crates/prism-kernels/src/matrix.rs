@@ -1,5 +1,7 @@
 //! Strided matrix views over host slices, and the kernels' matrix product on them.
 
+use std::mem::MaybeUninit;
+
 use gemm::{Parallelism, gemm};
 use rayon::prelude::*;
 
@@ -120,6 +122,22 @@ pub(crate) fn matmul(dst: &mut [f32], accumulate: bool, lhs: View<'_>, rhs: View
     assert_eq!(dst.len(), lhs.rows * rhs.cols, "matmul: output size");
     // SAFETY: `dst` holds exactly `m x n` initialised values, row-major.
     unsafe { gemm_call(dst.as_mut_ptr(), rhs.cols, accumulate, lhs, rhs, scale) };
+}
+
+/// `dst = scale * lhs rhs` into an unwritten `dst` (row-major `lhs.rows x rhs.cols`),
+/// single-threaded as [`matmul`]: every value written, handed back as a plain slice.
+pub(crate) fn matmul_into<'a>(
+    dst: &'a mut [MaybeUninit<f32>],
+    lhs: View<'_>,
+    rhs: View<'_>,
+    scale: f32,
+) -> &'a mut [f32] {
+    assert_eq!(dst.len(), lhs.rows * rhs.cols, "matmul: output size");
+    // SAFETY: `dst` holds exactly `m x n` values, row-major; without accumulation `gemm` reads
+    // none of them.
+    unsafe { gemm_call(dst.as_mut_ptr().cast(), rhs.cols, false, lhs, rhs, scale) };
+    // SAFETY: `gemm` without accumulation wrote every one of the `m x n` values.
+    unsafe { dst.assume_init_mut() }
 }
 
 /// The row-major `a b` through `gemm`, on all of rayon's threads when the product is large

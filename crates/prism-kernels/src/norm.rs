@@ -2,9 +2,11 @@
 //! backward, one pass over each row per output (the unfused Burn graph makes about eight).
 //! Rows are split over threads; the gain's gradient is summed per task and then added up.
 
+use std::mem::MaybeUninit;
+
 use multiversion::multiversion;
 
-use crate::buffer::{filled, filled_with};
+use crate::buffer::{Written, written};
 use crate::math;
 
 /// Which normalisation.
@@ -42,21 +44,42 @@ pub fn forward(kind: NormKind, x: &[f32], gamma: &[f32], eps: f32) -> Vec<f32> {
         x.len()
     );
     let task = rows_per_task(d) * d;
-    filled(x.len(), task, |i, y| {
-        forward_rows(kind, &x[i * task..][..y.len()], gamma, eps, y);
+    written(x.len(), task, |i, y| {
+        let y = forward_rows(kind, &x[i * task..][..y.len()], gamma, eps, y);
+        (Written::of(y), ())
     })
+    .0
 }
 
-/// [`forward`] on the rows of `x` into `y`, on this thread.
+/// [`forward`] on the rows of `x` into the unwritten `y` (as long as `x`), on this thread.
 #[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]
-pub(crate) fn forward_rows(kind: NormKind, x: &[f32], gamma: &[f32], eps: f32, y: &mut [f32]) {
+pub(crate) fn forward_rows<'y>(
+    kind: NormKind,
+    x: &[f32],
+    gamma: &[f32],
+    eps: f32,
+    y: &'y mut [MaybeUninit<f32>],
+) -> &'y mut [f32] {
     let d = gamma.len();
+    assert_rows(x.len(), y.len(), d);
     for (y, x) in y.chunks_exact_mut(d).zip(x.chunks_exact(d)) {
         let (centre, rstd) = stats(kind, x, eps);
         for ((y, &x), &g) in y.iter_mut().zip(x).zip(gamma) {
-            *y = (x - centre) * rstd * g;
+            y.write((x - centre) * rstd * g);
         }
     }
+    // SAFETY: `y` is whole rows of `d` (asserted above), and each of its rows had its `d`
+    // values written in the loop.
+    unsafe { y.assume_init_mut() }
+}
+
+/// Panics unless an output of `out` values is whole rows of `d` matching an input of `len`.
+#[inline(always)]
+fn assert_rows(len: usize, out: usize, d: usize) {
+    assert!(
+        out == len && d > 0 && len.is_multiple_of(d),
+        "norm: {out} outputs for {len} inputs in rows of {d}"
+    );
 }
 
 /// The gradients `(dx, dgamma)` of the normalisation given the output's gradient `grad`:
@@ -82,10 +105,10 @@ pub fn backward(
         "norm backward: input and gradient sizes differ"
     );
     let task = rows_per_task(d) * d;
-    let (dx, parts) = filled_with(x.len(), task, |i, dx| {
+    let (dx, parts) = written(x.len(), task, |i, dx| {
         let rows = i * task..i * task + dx.len();
         let mut dgamma = vec![0.0; d];
-        backward_rows(
+        let dx = backward_rows(
             kind,
             &x[rows.clone()],
             gamma,
@@ -94,7 +117,7 @@ pub fn backward(
             dx,
             &mut dgamma,
         );
-        dgamma
+        (Written::of(dx), dgamma)
     });
     // Summed in the tasks' order, not in rayon's reduction tree, whose shape follows which
     // thread stole what: the same inputs give the same bits on any number of threads.
@@ -105,20 +128,22 @@ pub fn backward(
     (dx, dgamma)
 }
 
-/// [`backward`] on the rows of `x` into `dx`, on this thread, adding the rows' share of the
-/// gain's gradient to `dgamma`.
+/// [`backward`] on the rows of `x` into the unwritten `dx` (as long as `x` and `grad`), on
+/// this thread, adding the rows' share of the gain's gradient to `dgamma`.
 #[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]
-pub(crate) fn backward_rows(
+pub(crate) fn backward_rows<'dx>(
     kind: NormKind,
     x: &[f32],
     gamma: &[f32],
     grad: &[f32],
     eps: f32,
-    dx: &mut [f32],
+    dx: &'dx mut [MaybeUninit<f32>],
     dgamma: &mut [f32],
-) {
+) -> &'dx mut [f32] {
     let d = gamma.len();
     let n = d as f32;
+    assert_rows(x.len(), dx.len(), d);
+    assert_rows(x.len(), grad.len(), d);
     for ((dx, x), g) in dx
         .chunks_exact_mut(d)
         .zip(x.chunks_exact(d))
@@ -127,8 +152,10 @@ pub(crate) fn backward_rows(
         let (centre, rstd) = stats(kind, x, eps);
         // dx holds gg = grad * gamma until the last loop.
         for ((dx, &g), &w) in dx.iter_mut().zip(g).zip(gamma) {
-            *dx = g * w;
+            dx.write(g * w);
         }
+        // SAFETY: the row's `d` values were written on the lines above.
+        let dx = unsafe { dx.assume_init_mut() };
         let mean_gg = match kind {
             NormKind::Layer => math::sum_map(dx, |v| v) / n,
             NormKind::Rms => 0.0,
@@ -140,6 +167,8 @@ pub(crate) fn backward_rows(
             *dx = rstd * (*dx - mean_gg - xh * mean_gg_xh);
         }
     }
+    // SAFETY: `dx` is whole rows of `d` (asserted above), each written in the loop.
+    unsafe { dx.assume_init_mut() }
 }
 
 #[cfg(test)]
