@@ -51,13 +51,56 @@ pub(crate) fn written_init<T, R: Send>(
     init: impl Fn() -> T + Sync + Send,
     fill: impl Fn(&mut T, usize, &mut [MaybeUninit<f32>]) -> (Written, R) + Sync + Send,
 ) -> (Vec<f32>, Vec<R>) {
+    let chunks = len.div_ceil(chunk.max(1));
+    chunks_written(
+        len,
+        chunk,
+        rayon::iter::repeat_n((), chunks),
+        init,
+        |s, i, (), part| fill(s, i, part),
+    )
+}
+
+/// [`written`] beside an input that the tasks update in place: `fill(input, output)` gets the
+/// matching chunks of `input` and of `input.len()` new values.
+pub(crate) fn written_beside<R: Send>(
+    input: &mut [f32],
+    chunk: usize,
+    fill: impl Fn(&mut [f32], &mut [MaybeUninit<f32>]) -> (Written, R) + Sync + Send,
+) -> (Vec<f32>, Vec<R>) {
+    let (len, inputs) = (input.len(), input.par_chunks_mut(chunk.max(1)));
+    chunks_written(
+        len,
+        chunk,
+        inputs,
+        || (),
+        |_, _, input, part| fill(input, part),
+    )
+}
+
+/// The one mechanism behind [`written_init`] and [`written_beside`]: `len` new values in
+/// chunks of `chunk`, chunk `i` given unwritten to `fill` with the scratch of its rayon job and
+/// item `i` of `inputs`; each chunk's proof checked; `fill`'s results in the chunks' order.
+fn chunks_written<I, T, R>(
+    len: usize,
+    chunk: usize,
+    inputs: I,
+    init: impl Fn() -> T + Sync + Send,
+    fill: impl Fn(&mut T, usize, I::Item, &mut [MaybeUninit<f32>]) -> (Written, R) + Sync + Send,
+) -> (Vec<f32>, Vec<R>)
+where
+    I: IndexedParallelIterator,
+    R: Send,
+{
     let mut values = Vec::with_capacity(len);
-    let results = values.spare_capacity_mut()[..len]
-        .par_chunks_mut(chunk.max(1))
+    let parts = values.spare_capacity_mut()[..len].par_chunks_mut(chunk.max(1));
+    assert_eq!(inputs.len(), parts.len(), "one input per chunk");
+    let results = parts
+        .zip(inputs)
         .enumerate()
-        .map_init(init, |scratch, (i, part)| {
+        .map_init(init, |scratch, (i, (part, input))| {
             let span = Span::of(part);
-            let (Written(written), result) = fill(scratch, i, part);
+            let (Written(written), result) = fill(scratch, i, input, part);
             assert_eq!(written, span, "a chunk was not written whole");
             result
         })

@@ -5,7 +5,7 @@ use rayon::prelude::*;
 
 use std::mem::MaybeUninit;
 
-use crate::buffer::{Written, write_each, written};
+use crate::buffer::{Written, write_each, written, written_beside};
 use crate::math;
 
 /// Elements per parallel task: large enough to amortise scheduling, small enough to balance.
@@ -27,34 +27,41 @@ pub fn gelu_of(x: &[f32]) -> Vec<f32> {
     .0
 }
 
-/// `dx = grad * GELU'(x)`.
-pub fn gelu_backward(x: &[f32], grad: &[f32]) -> Vec<f32> {
-    assert_eq!(
-        x.len(),
-        grad.len(),
-        "gelu_backward: input and gradient sizes differ"
-    );
-    written(x.len(), CHUNK, |i, dx| {
-        let chunk = i * CHUNK..i * CHUNK + dx.len();
-        // Copied in cache, then the in-place kernel: one kernel for both paths.
-        let dx = dx.write_copy_of_slice(&grad[chunk.clone()]);
-        gelu_backward_chunk_in_place(&x[chunk], dx);
-        (Written::of(dx), ())
+/// `x = GELU(x)` in place, returning `GELU'(x)` of the values it had, from one pass: what the
+/// reverse pass keeps, so that it multiplies by the derivative instead of computing it again
+/// from the kept input (an `erf`, two `exp` and a division per value, a third of them in the
+/// forward pass already).
+pub fn gelu_keeping_derivative(x: &mut [f32]) -> Vec<f32> {
+    written_beside(x, CHUNK, |x, d| {
+        let d = gelu_and_derivative_chunk(x, d);
+        (Written::of(d), ())
     })
     .0
 }
 
-/// [`gelu_backward`] in place of `grad`, for a gradient no other tensor holds: no new buffer
-/// to zero and write, the same values.
-pub fn gelu_backward_in_place(x: &[f32], grad: &mut [f32]) {
-    assert_eq!(
-        x.len(),
-        grad.len(),
-        "gelu_backward: input and gradient sizes differ"
-    );
+/// `grad *= factor`, in place.
+pub fn scale_in_place(grad: &mut [f32], factor: &[f32]) {
+    assert_eq!(grad.len(), factor.len(), "scale: sizes differ");
     grad.par_chunks_mut(CHUNK)
-        .zip(x.par_chunks(CHUNK))
-        .for_each(|(grad, x)| gelu_backward_chunk_in_place(x, grad));
+        .zip(factor.par_chunks(CHUNK))
+        .for_each(|(g, f)| g.iter_mut().zip(f).for_each(|(g, f)| *g *= f));
+}
+
+/// `grad * factor` into a new buffer.
+pub fn scaled(grad: &[f32], factor: &[f32]) -> Vec<f32> {
+    assert_eq!(grad.len(), factor.len(), "scale: sizes differ");
+    written(grad.len(), CHUNK, |i, out| {
+        let (g, f) = (
+            &grad[i * CHUNK..][..out.len()],
+            &factor[i * CHUNK..][..out.len()],
+        );
+        for ((o, &g), &f) in out.iter_mut().zip(g).zip(f) {
+            o.write(g * f);
+        }
+        // SAFETY: `g` is as long as `out`, so the loop wrote every value of it.
+        (Written::of(unsafe { out.assume_init_mut() }), ())
+    })
+    .0
 }
 
 #[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]
@@ -70,10 +77,15 @@ fn gelu_chunk_into<'y>(x: &[f32], y: &'y mut [MaybeUninit<f32>]) -> &'y mut [f32
 }
 
 #[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]
-fn gelu_backward_chunk_in_place(x: &[f32], grad: &mut [f32]) {
-    for (g, &x) in grad.iter_mut().zip(x) {
-        *g *= math::gelu_derivative(x);
+fn gelu_and_derivative_chunk<'d>(x: &mut [f32], d: &'d mut [MaybeUninit<f32>]) -> &'d mut [f32] {
+    assert_eq!(x.len(), d.len(), "gelu: sizes differ");
+    for (x, d) in x.iter_mut().zip(d.iter_mut()) {
+        // The same operations as `gelu` and `gelu_derivative` (the compiler shares their `erf`).
+        d.write(math::gelu_derivative(*x));
+        *x = math::gelu(*x);
     }
+    // SAFETY: `d` is as long as `x` (asserted), so the loop wrote every value of it.
+    unsafe { d.assume_init_mut() }
 }
 
 #[cfg(test)]
@@ -81,19 +93,26 @@ mod tests {
     use super::*;
     use crate::test_util::bits;
 
-    /// The in-place reverse pass gives the new buffer's values bit for bit, over several chunks
-    /// and a partial last one.
+    /// GELU with its derivative kept gives `gelu_of`'s values and `gelu_derivative`'s, bit for
+    /// bit, over several chunks and a partial last one; the gradient scaled in place and into
+    /// a new buffer agree.
     #[test]
-    fn in_place_backward_is_the_backward() {
+    fn the_kept_derivative_is_the_derivative() {
         let n = 2 * CHUNK + 77;
         let x: Vec<f32> = crate::test_util::values(n, 1)
             .iter()
-            .map(|v| 4.0 * v)
+            .map(|v| 8.0 * v - 4.0)
             .collect();
+        let mut y = x.clone();
+        let d = gelu_keeping_derivative(&mut y);
+        assert_eq!(bits(&y), bits(&gelu_of(&x)));
+        let want: Vec<f32> = x.iter().map(|&x| math::gelu_derivative(x)).collect();
+        assert_eq!(bits(&d), bits(&want));
         let grad = crate::test_util::values(n, 2);
-        let want = gelu_backward(&x, &grad);
         let mut got = grad.clone();
-        gelu_backward_in_place(&x, &mut got);
-        assert_eq!(bits(&want), bits(&got));
+        scale_in_place(&mut got, &d);
+        let want: Vec<f32> = grad.iter().zip(&d).map(|(g, d)| g * d).collect();
+        assert_eq!(bits(&got), bits(&want));
+        assert_eq!(bits(&scaled(&grad, &d)), bits(&want));
     }
 }

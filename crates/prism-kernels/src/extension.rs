@@ -104,14 +104,35 @@ fn gelu<B: HostTensors>(x: FloatTensor<B>) -> FloatTensor<B> {
     B::map(x, elementwise::gelu, elementwise::gelu_of)
 }
 
-/// `grad * GELU'(x)` through the host kernel, in place of `grad` where no other tensor holds
-/// it.
-fn gelu_backward<B: HostTensors>(x: FloatTensor<B>, grad: FloatTensor<B>) -> FloatTensor<B> {
-    let x = B::values(x);
+/// `(GELU(x), GELU'(x))` through the host kernel, in one pass: the value in place of `x` where
+/// no other tensor holds it (else in a copy), the derivative in a new buffer.
+fn gelu_with_derivative<B: HostTensors>(x: FloatTensor<B>) -> (FloatTensor<B>, FloatTensor<B>) {
+    let (shape, device) = (x.shape(), x.device());
+    let derivative = std::cell::OnceCell::new();
+    let keep = |x: &mut [f32]| {
+        let kept = derivative.set(elementwise::gelu_keeping_derivative(x));
+        assert!(kept.is_ok(), "one derivative per call");
+    };
+    let y = B::map(x, keep, |x| {
+        let mut y = x.to_vec();
+        keep(&mut y);
+        y
+    });
+    let derivative = derivative.into_inner().expect("map runs one of its paths");
+    (y, B::tensor(derivative, shape, &device))
+}
+
+/// GELU's reverse pass from the derivative its forward pass kept: `grad * GELU'(x)`, in place
+/// of `grad` where no other tensor holds it.
+fn gelu_backward<B: HostTensors>(
+    derivative: FloatTensor<B>,
+    grad: FloatTensor<B>,
+) -> FloatTensor<B> {
+    let derivative = B::values(derivative);
     B::map(
         grad,
-        |grad| elementwise::gelu_backward_in_place(&x, grad),
-        |grad| elementwise::gelu_backward(&x, grad),
+        |grad| elementwise::scale_in_place(grad, &derivative),
+        |grad| elementwise::scaled(grad, &derivative),
     )
 }
 
@@ -544,7 +565,7 @@ macro_rules! host_fused_ops {
 host_fused_ops!(Flex);
 host_fused_ops!(NdArray);
 
-/// Backward step of [`FusedOps::fused_gelu`].
+/// Backward step of [`FusedOps::fused_gelu`]; its state is the derivative at the input.
 #[derive(Debug)]
 struct GeluBackward;
 
@@ -692,7 +713,10 @@ impl<B: HostTensors, C: CheckpointStrategy> FusedOps for Autodiff<B, C> {
         let nodes = [x.node()];
         let x = x.into_primitive();
         match GeluBackward.prepare::<C>(nodes).compute_bound().stateful() {
-            OpsKind::Tracked(prep) => prep.finish(x.clone(), gelu::<B>(x)),
+            OpsKind::Tracked(prep) => {
+                let (y, derivative) = gelu_with_derivative::<B>(x);
+                prep.finish(derivative, y)
+            }
             OpsKind::UnTracked(prep) => prep.finish(gelu::<B>(x)),
         }
     }
