@@ -1,4 +1,5 @@
-//! GELU on host slices, forward and backward: one pass each, vectorised, split over threads.
+//! GELU on host slices, with its derivative kept for the reverse pass, which scales the
+//! gradient by it: one pass each, vectorised, split over threads.
 
 use multiversion::multiversion;
 use rayon::prelude::*;
@@ -17,8 +18,8 @@ pub fn gelu(x: &mut [f32]) {
 }
 
 /// `GELU(x)` into a new buffer, in one parallel pass that reads `x` and writes the result: for
-/// an input that must be kept (autodiff keeps it for the reverse pass), where copying it first
-/// and then working in place would be a serial copy and a second pass.
+/// an input another tensor still holds, where copying it first and then working in place would
+/// be a serial copy and a second pass.
 pub fn gelu_of(x: &[f32]) -> Vec<f32> {
     written(x.len(), CHUNK, |i, y| {
         let y = gelu_chunk_into(&x[i * CHUNK..i * CHUNK + y.len()], y);

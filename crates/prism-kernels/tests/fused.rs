@@ -108,6 +108,21 @@ fn gelu_matches_burn() {
         |[x]| exact(x * 3.0),
         2e-6,
     );
+    // A tracked input that another tensor still holds: GELU and its kept derivative go into
+    // new buffers, and the input is left for its other reader.
+    check::<3, 1>(
+        "gelu of a shared input",
+        [vec![3, 70, 33]],
+        |[x]| {
+            let h = x * 3.0;
+            gelu(h.clone()) + h
+        },
+        |[x]| {
+            let h = x * 3.0;
+            exact(h.clone()) + h
+        },
+        2e-6,
+    );
     // One chunk of the host kernel, and several with a partial last one (a shared input is
     // read into a new buffer chunk by chunk).
     for (backend, device) in devices() {
