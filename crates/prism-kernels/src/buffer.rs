@@ -44,6 +44,15 @@ pub(crate) fn written<R: Send>(
     written_init(len, chunk, || (), |_, i, part| fill(i, part))
 }
 
+/// [`written`] for a `fill` that returns nothing but its proof: the values alone.
+pub(crate) fn written_values(
+    len: usize,
+    chunk: usize,
+    fill: impl Fn(usize, &mut [MaybeUninit<f32>]) -> Written + Sync + Send,
+) -> Vec<f32> {
+    written(len, chunk, |i, part| (fill(i, part), ())).0
+}
+
 /// [`written`] with per-thread scratch, as [`filled_init`] has.
 pub(crate) fn written_init<T, R: Send>(
     len: usize,
@@ -61,21 +70,22 @@ pub(crate) fn written_init<T, R: Send>(
     )
 }
 
-/// [`written`] beside an input that the tasks update in place: `fill(input, output)` gets the
-/// matching chunks of `input` and of `input.len()` new values.
-pub(crate) fn written_beside<R: Send>(
+/// [`written_values`] beside an input that the tasks update in place: `fill(input, output)`
+/// gets the matching chunks of `input` and of `input.len()` new values.
+pub(crate) fn written_beside(
     input: &mut [f32],
     chunk: usize,
-    fill: impl Fn(&mut [f32], &mut [MaybeUninit<f32>]) -> (Written, R) + Sync + Send,
-) -> (Vec<f32>, Vec<R>) {
+    fill: impl Fn(&mut [f32], &mut [MaybeUninit<f32>]) -> Written + Sync + Send,
+) -> Vec<f32> {
     let (len, inputs) = (input.len(), input.par_chunks_mut(chunk.max(1)));
     chunks_written(
         len,
         chunk,
         inputs,
         || (),
-        |_, _, input, part| fill(input, part),
+        |_, _, input, part| (fill(input, part), ()),
     )
+    .0
 }
 
 /// The one mechanism behind [`written_init`] and [`written_beside`]: `len` new values in

@@ -263,13 +263,8 @@ pub fn backward(
         );
     }
     let w = View::rows(weight, d.outputs, taps);
-    let dy_view = |i: usize| {
-        View::rows(
-            &dy[i * d.outputs * pixels..][..d.outputs * pixels],
-            d.outputs,
-            pixels,
-        )
-    };
+    let image_dy = |i: usize| &dy[i * d.outputs * pixels..][..d.outputs * pixels];
+    let dy_view = |i: usize| View::rows(image_dy(i), d.outputs, pixels);
     // One image's own weight and bias gradients (empty where not wanted).
     let image_weight_grads = |cols: &mut Vec<f32>, i: usize| -> (Vec<f32>, Vec<f32>) {
         if !wanted.weight {
@@ -279,7 +274,7 @@ pub fn backward(
         let mut dw = vec![0.0f32; d.outputs * taps];
         let transposed = View::transposed(cols, pixels, taps);
         matmul(&mut dw, false, dy_view(i), transposed, 1.0);
-        let db = dy[i * d.outputs * pixels..][..d.outputs * pixels]
+        let db = image_dy(i)
             .chunks_exact(pixels)
             .map(|r| r.iter().sum())
             .collect();

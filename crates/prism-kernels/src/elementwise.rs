@@ -6,7 +6,7 @@ use rayon::prelude::*;
 
 use std::mem::MaybeUninit;
 
-use crate::buffer::{Written, write_each, written, written_beside};
+use crate::buffer::{Written, write_each, written_beside, written_values};
 use crate::math;
 
 /// Elements per parallel task: large enough to amortise scheduling, small enough to balance.
@@ -21,11 +21,9 @@ pub fn gelu(x: &mut [f32]) {
 /// an input another tensor still holds, where copying it first and then working in place would
 /// be a serial copy and a second pass.
 pub fn gelu_of(x: &[f32]) -> Vec<f32> {
-    written(x.len(), CHUNK, |i, y| {
-        let y = gelu_chunk_into(&x[i * CHUNK..i * CHUNK + y.len()], y);
-        (Written::of(y), ())
+    written_values(x.len(), CHUNK, |i, y| {
+        Written::of(gelu_chunk_into(&x[i * CHUNK..i * CHUNK + y.len()], y))
     })
-    .0
 }
 
 /// `x = GELU(x)` in place, returning `GELU'(x)` of the values it had, from one pass: what the
@@ -34,10 +32,8 @@ pub fn gelu_of(x: &[f32]) -> Vec<f32> {
 /// forward pass already).
 pub fn gelu_keeping_derivative(x: &mut [f32]) -> Vec<f32> {
     written_beside(x, CHUNK, |x, d| {
-        let d = gelu_and_derivative_chunk(x, d);
-        (Written::of(d), ())
+        Written::of(gelu_and_derivative_chunk(x, d))
     })
-    .0
 }
 
 /// `grad *= factor`, in place.
@@ -51,7 +47,7 @@ pub fn scale_in_place(grad: &mut [f32], factor: &[f32]) {
 /// `grad * factor` into a new buffer.
 pub fn scaled(grad: &[f32], factor: &[f32]) -> Vec<f32> {
     assert_eq!(grad.len(), factor.len(), "scale: sizes differ");
-    written(grad.len(), CHUNK, |i, out| {
+    written_values(grad.len(), CHUNK, |i, out| {
         let (g, f) = (
             &grad[i * CHUNK..][..out.len()],
             &factor[i * CHUNK..][..out.len()],
@@ -60,9 +56,8 @@ pub fn scaled(grad: &[f32], factor: &[f32]) -> Vec<f32> {
             o.write(g * f);
         }
         // SAFETY: `g` is as long as `out`, so the loop wrote every value of it.
-        (Written::of(unsafe { out.assume_init_mut() }), ())
+        Written::of(unsafe { out.assume_init_mut() })
     })
-    .0
 }
 
 #[multiversion(targets("x86_64+avx512f+avx512vl+avx512dq", "x86_64+avx2+fma"))]

@@ -14,7 +14,7 @@ use std::mem::MaybeUninit;
 
 use crate::attention::{self, Dims};
 use crate::bf16::Bf16Kernel;
-use crate::buffer::{Written, write_parts, written};
+use crate::buffer::{Written, write_parts, written, written_values};
 use crate::linear_attention::{self, FeatureMap};
 use crate::norm::{self, NormKind, rows_per_task};
 
@@ -210,26 +210,22 @@ fn head_major(
     l: Heads,
     write: impl Fn(usize, usize, &mut [MaybeUninit<f32>]) -> Written + Sync + Send,
 ) -> Vec<f32> {
-    written(l.len(), l.tokens * l.head_dim, |bh, out| {
-        let (b, h) = (bh / l.heads, bh % l.heads);
-        (write(b, h, out), ())
+    written_values(l.len(), l.tokens * l.head_dim, |bh, out| {
+        write(bh / l.heads, bh % l.heads, out)
     })
-    .0
 }
 
 /// The heads' outputs from head-major order `[B H, T, d_h]` to token-major `[B, T, H, d_h]`.
 fn merge(o: &[f32], l: Heads) -> Vec<f32> {
     let (width, d) = (l.width(), l.head_dim);
     let rows = rows_per_task(width);
-    written(l.len(), rows * width, |task, out| {
-        let written = write_parts(out, d, |i, dst| {
+    written_values(l.len(), rows * width, |task, out| {
+        write_parts(out, d, |i, dst| {
             let (bt, h) = (task * rows + i / l.heads, i % l.heads);
             let (b, t) = (bt / l.tokens, bt % l.tokens);
             Written::of(dst.write_copy_of_slice(&o[l.head_major(b * l.heads + h, t)..][..d]))
-        });
-        (written, ())
+        })
     })
-    .0
 }
 
 /// A token-major `[B, T, H, d_h]` tensor in head-major order `[B H, T, d_h]`.

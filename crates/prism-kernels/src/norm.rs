@@ -6,7 +6,7 @@ use std::mem::MaybeUninit;
 
 use multiversion::multiversion;
 
-use crate::buffer::{Written, written};
+use crate::buffer::{Written, written, written_values};
 use crate::math;
 
 /// Which normalisation.
@@ -44,11 +44,9 @@ pub fn forward(kind: NormKind, x: &[f32], gamma: &[f32], eps: f32) -> Vec<f32> {
         x.len()
     );
     let task = rows_per_task(d) * d;
-    written(x.len(), task, |i, y| {
-        let y = forward_rows(kind, &x[i * task..][..y.len()], gamma, eps, y);
-        (Written::of(y), ())
+    written_values(x.len(), task, |i, y| {
+        Written::of(forward_rows(kind, &x[i * task..][..y.len()], gamma, eps, y))
     })
-    .0
 }
 
 /// [`forward`] on the rows of `x` into the unwritten `y` (as long as `x`), on this thread.
