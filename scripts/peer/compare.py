@@ -8,7 +8,13 @@ cores to themselves) and prints a Markdown table of both times and prism / PyTor
 usage (from the repository root, with a Python that has torch):
     python scripts/peer/compare.py [--prism target/release/prism] [--res 128,256]
         [--backend flex] [--threads 2] [--iters 10] [--train-steps 10] [--precision bf16]
-        [--json out.json]
+        [--rounds 5] [--json out.json]
+
+`--rounds N` runs the two sides in turn N times (prism, PyTorch, prism, PyTorch, ...) and
+prints each side's median over the rounds, their ratio, and the lowest and highest of the
+rounds' own ratios. A virtual machine's cores change speed between spells of minutes, so one
+run of each side, minutes apart, can compare two different machines; taking turns puts both
+sides in every spell.
 
 `--precision bf16` runs prism's blocks with `--precision bf16` and PyTorch under bf16
 autocast (`torch_backbone.py --dtype bf16`). `--threads N` gives both sides N threads:
@@ -21,6 +27,7 @@ one side had a few percent of steal and the other none says more about the host 
 import argparse
 import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -141,34 +148,79 @@ def main():
                     help="training steps on each side (the median after 2 warm-up steps)")
     ap.add_argument("--precision", choices=["f32", "bf16"], default="f32",
                     help="both sides' precision: f32, or prism's bf16 against bf16 autocast")
-    ap.add_argument("--json", help="also write the rows to this file")
+    ap.add_argument("--rounds", type=int, default=1,
+                    help="run the two sides in turn this many times and compare the medians")
+    ap.add_argument("--json", help="also write the rows (and each round's) to this file")
     args = ap.parse_args()
+    if args.rounds < 1:
+        sys.exit(f"--rounds {args.rounds}: at least 1")
     if not os.path.isfile(args.prism):
         sys.exit(f"{args.prism}: no such file (build it with `cargo build --release`)")
-    before = cpu_times()
-    prism = run_prism(args.prism, CONFIG, args.res, args.backend, args.warmup, args.iters,
-                      args.train_steps, extra=["--precision", args.precision],
-                      env={**os.environ, "RAYON_NUM_THREADS": str(args.threads)})
-    prism_steal, before = steal_since(before), cpu_times()
-    torch_rows = run_torch(backbone_shapes(CONFIG), args.res, args.threads, args.warmup,
-                           args.iters, TRAIN_RES, args.train_steps,
-                           extra=["--dtype", args.precision])
-    torch_steal = steal_since(before)
-    rows = []
-    print("| what | res | prism ms | PyTorch ms | prism / PyTorch |")
-    print("|---|---|---|---|---|")
-    for key in sorted(prism, key=lambda k: (k[0] == "train_step", k[1], k[0])):
-        if key not in torch_rows:
-            continue
-        ours, theirs = prism[key]["ms"], torch_rows[key]["ms"]
-        rows.append({"what": key[0], "res": key[1], "prism_ms": ours, "torch_ms": theirs,
-                     "ratio": ours / theirs})
-        print(f"| {key[0]} | {key[1]} | {ours:.1f} | {theirs:.1f} | {ours / theirs:.2f}x |")
-    print(f"CPU steal: prism {prism_steal}, PyTorch {torch_steal}")
+    prism_env = {**os.environ, "RAYON_NUM_THREADS": str(args.threads)}
+    rounds = []
+    for r in range(args.rounds):
+        if args.rounds > 1:
+            print(f"round {r + 1} of {args.rounds}", file=sys.stderr)
+        before = cpu_times()
+        prism = run_prism(args.prism, CONFIG, args.res, args.backend, args.warmup, args.iters,
+                          args.train_steps, extra=["--precision", args.precision],
+                          env=prism_env)
+        prism_steal, before = steal_since(before), cpu_times()
+        torch_rows = run_torch(backbone_shapes(CONFIG), args.res, args.threads, args.warmup,
+                               args.iters, TRAIN_RES, args.train_steps,
+                               extra=["--dtype", args.precision])
+        rounds.append({"prism": prism, "torch": torch_rows,
+                       "cpu_steal": {"prism": prism_steal, "torch": steal_since(before)}})
+    rows = table(rounds)
+    steals = [f"prism {r['cpu_steal']['prism']}, PyTorch {r['cpu_steal']['torch']}"
+              for r in rounds]
+    print("CPU steal: " + "; ".join(steals))
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"rows": rows, "cpu_steal": {"prism": prism_steal, "torch": torch_steal}},
-                      f, indent=1)
+            json.dump({"rows": rows, "cpu_steal": rounds[-1]["cpu_steal"],
+                       "rounds": [{"rows": round_rows(r), "cpu_steal": r["cpu_steal"]}
+                                  for r in rounds]}, f, indent=1)
+
+
+def round_rows(one):
+    """One round's rows, `{"what", "res", "prism_ms", "torch_ms", "ratio"}`, for the keys both
+    sides timed, in the table's order."""
+    prism, torch_rows = one["prism"], one["torch"]
+    keys = sorted((k for k in prism if k in torch_rows),
+                  key=lambda k: (k[0] == "train_step", k[1], k[0]))
+    return [{"what": k[0], "res": k[1], "prism_ms": prism[k]["ms"],
+             "torch_ms": torch_rows[k]["ms"], "ratio": prism[k]["ms"] / torch_rows[k]["ms"]}
+            for k in keys]
+
+
+def table(rounds):
+    """Prints the Markdown table of `rounds` (each `{"prism", "torch"}` rows by key) and returns
+    its rows: each side's median over the rounds and their ratio; with several rounds, also the
+    lowest and highest of the rounds' own ratios (`ratio_min`, `ratio_max`)."""
+    per_round = [round_rows(r) for r in rounds]
+    several = len(rounds) > 1
+    head = "| what | res | prism ms | PyTorch ms | prism / PyTorch |"
+    rule = "|---|---|---|---|---|"
+    if several:
+        head += f" rounds' ratios ({len(rounds)}) |"
+        rule += "---|"
+    print(head)
+    print(rule)
+    rows = []
+    for i, first in enumerate(per_round[0]):
+        ours = statistics.median(r[i]["prism_ms"] for r in per_round)
+        theirs = statistics.median(r[i]["torch_ms"] for r in per_round)
+        row = {"what": first["what"], "res": first["res"], "prism_ms": ours,
+               "torch_ms": theirs, "ratio": ours / theirs}
+        line = (f"| {row['what']} | {row['res']} | {ours:.1f} | {theirs:.1f} | "
+                f"{row['ratio']:.2f}x |")
+        if several:
+            ratios = [r[i]["ratio"] for r in per_round]
+            row["ratio_min"], row["ratio_max"] = min(ratios), max(ratios)
+            line += f" {row['ratio_min']:.2f}x to {row['ratio_max']:.2f}x |"
+        rows.append(row)
+        print(line)
+    return rows
 
 
 if __name__ == "__main__":

@@ -203,3 +203,38 @@ fn the_pytorch_peer_config_has_the_peer_shapes_and_runs() {
         "{table}"
     );
 }
+
+/// `compare.py --rounds N` compares each side's median over the rounds and gives the range of
+/// the rounds' own ratios; a row only one side timed is left out.
+#[test]
+fn the_pytorch_comparison_takes_the_median_of_its_rounds() {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scripts/peer");
+    let script = format!(
+        "import sys, json, contextlib, io; sys.path.insert(0, {dir:?}); import compare\n\
+         side = lambda ms: {{('linear', 128): {{'ms': ms}}, ('train_step', 128): {{'ms': 2 * ms}}}}\n\
+         rounds = [dict(prism=side(p), torch=side(t)) for p, t in [(10, 20), (30, 20), (20, 40)]]\n\
+         rounds[0]['prism'][('teacher', 128)] = {{'ms': 5}}\n\
+         with contextlib.redirect_stdout(io.StringIO()) as table:\n    rows = compare.table(rounds)\n\
+         print(json.dumps(dict(rows=rows, table=table.getvalue())))",
+    );
+    let mut python = Command::new("python3");
+    python.args(["-c", &script]);
+    let out: serde_json::Value = serde_json::from_str(&stdout(&success(python))).unwrap();
+    let rows = out["rows"].as_array().unwrap();
+    let what: Vec<&str> = rows.iter().map(|r| r["what"].as_str().unwrap()).collect();
+    assert_eq!(what, ["linear", "train_step"], "{out}");
+    for (row, scale) in rows.iter().zip([1.0, 2.0]) {
+        assert_eq!(row["prism_ms"], 20.0 * scale);
+        assert_eq!(row["torch_ms"], 20.0 * scale);
+        assert_eq!(row["ratio"], 1.0);
+        assert_eq!(
+            (&row["ratio_min"], &row["ratio_max"]),
+            (&0.5.into(), &1.5.into())
+        );
+    }
+    let table = out["table"].as_str().unwrap();
+    assert!(
+        table.contains("| linear | 128 | 20.0 | 20.0 | 1.00x | 0.50x to 1.50x |"),
+        "{table}"
+    );
+}
