@@ -87,8 +87,9 @@ pub fn forward(q: &[f32], k: &[f32], v: &[f32], dims: Dims, scale: f32) -> (Vec<
 }
 
 /// [`forward`] with the two products taking bf16 operands through `kernel`, the exponentials
-/// and their sums in f32. Only AMX's tiles have a path here ([`forward_amx`]); with the other
-/// kernels attention stays f32 ([`forward`]).
+/// and their sums in f32: on AMX's tiles ([`forward_amx`]) or with AVX512-BF16's `vdpbf16ps`
+/// ([`forward_avx512`]). With [`Bf16Kernel::Rounded`] (no faster than f32) attention stays f32
+/// ([`forward`]).
 pub fn forward_bf16(
     kernel: Bf16Kernel,
     q: &[f32],
@@ -100,8 +101,50 @@ pub fn forward_bf16(
     match kernel {
         #[cfg(target_arch = "x86_64")]
         Bf16Kernel::Amx => forward_amx(q, k, v, dims, scale),
+        #[cfg(target_arch = "x86_64")]
+        Bf16Kernel::Avx512Bf16 => forward_avx512(q, k, v, dims, scale),
         _ => forward(q, k, v, dims, scale),
     }
+}
+
+/// [`forward`] with `vdpbf16ps`: `q`, `k`, `v` and each row's exponentials `exp(scale (s -
+/// max s))` rounded to bf16, the products summed in f32, and the output rows divided by the
+/// exponentials' f32 sums (the roundings of [`forward_amx`]). Each head's `k^T` and `v` are
+/// packed once for all its blocks. Panics unless the CPU runs [`Bf16Kernel::Avx512Bf16`].
+#[cfg(target_arch = "x86_64")]
+fn forward_avx512(q: &[f32], k: &[f32], v: &[f32], dims: Dims, scale: f32) -> (Vec<f32>, Vec<f32>) {
+    use crate::bf16::avx512::{pack, rows_product};
+    assert!(
+        Bf16Kernel::Avx512Bf16.runs_here(),
+        "this CPU does not run AVX512-BF16"
+    );
+    let (tokens, head_dim) = (dims.tokens, dims.head_dim);
+    each_block(
+        [q, k, v],
+        dims,
+        |h| {
+            let span = h * dims.per_head()..(h + 1) * dims.per_head();
+            let (k, v) = (&k[span.clone()], &v[span.clone()]);
+            let keys = pack(View::transposed(k, head_dim, tokens));
+            let values = pack(View::rows(v, tokens, head_dim));
+            (span.start, keys, values)
+        },
+        || {
+            let scores = vec![0.0; BLOCK.min(tokens) * tokens];
+            (scores, Vec::new(), [0.0f32; BLOCK])
+        },
+        |(start, keys, values), b, o, lse, (p, packed, inv)| {
+            let rows = lse.len();
+            let q = &q[start + b * BLOCK * head_dim..][..rows * head_dim];
+            let (p, inv) = (&mut p[..rows * tokens], &mut inv[..rows]);
+            rows_product(View::rows(q, rows, head_dim), 0, tokens, keys, packed, p);
+            exponentials(p, tokens, scale, lse, inv);
+            let o = zeroed(o);
+            rows_product(View::rows(p, rows, tokens), 0, head_dim, values, packed, o);
+            divide_rows(o, head_dim, inv);
+            Written::of(o)
+        },
+    )
 }
 
 /// [`forward`] on AMX's tiles: `q`, `k`, `v` and each row's exponentials `exp(scale (s -
@@ -361,13 +404,20 @@ mod tests {
         out
     }
 
-    /// The bf16 forward on every kernel this CPU runs: AMX against the rounded reference (to
-    /// within one bf16 step of an exponential that rounds the other way), on sizes that
-    /// leave partial tiles, strips, panels and blocks; the other kernels' f32 path against the
-    /// f32 forward exactly.
+    /// The bf16 forward on every kernel this CPU runs: AMX and `vdpbf16ps` against the rounded
+    /// reference (to within one bf16 step of an exponential that rounds the other way), on
+    /// sizes that leave partial tiles, strips, panels, blocks of the inner dimension and
+    /// blocks of queries; the rounded kernel's f32 path against the f32 forward exactly.
     #[test]
     fn bf16_forward_matches_its_rounded_reference() {
-        for (heads, tokens, head_dim) in [(1, 1, 1), (2, 45, 24), (1, 100, 64), (3, 130, 40)] {
+        let sizes = [
+            (1, 1, 1),
+            (2, 45, 24),
+            (1, 100, 64),
+            (3, 130, 40),
+            (1, 400, 33),
+        ];
+        for (heads, tokens, head_dim) in sizes {
             let dims = Dims {
                 heads,
                 tokens,
@@ -383,7 +433,7 @@ mod tests {
                     continue;
                 }
                 let (o, lse) = forward_bf16(kernel, &q, &k, &v, dims, scale);
-                if kernel != Bf16Kernel::Amx {
+                if kernel == Bf16Kernel::Rounded {
                     assert_eq!((o, lse), f32_out, "{kernel:?} takes the f32 path");
                     continue;
                 }
@@ -398,7 +448,7 @@ mod tests {
                     .fold(0.0, f64::max);
                 assert!(
                     err < 2e-3,
-                    "AMX attention {heads} x {tokens} x {head_dim}: error {err}"
+                    "{kernel:?} attention {heads} x {tokens} x {head_dim}: error {err}"
                 );
                 let f32_err = o
                     .iter()
@@ -406,7 +456,8 @@ mod tests {
                     .map(|(a, b)| (a - b).abs())
                     .fold(0.0, f32::max);
                 eprintln!(
-                    "{heads} x {tokens} x {head_dim}: {err:e} from the reference, {f32_err:e} from f32"
+                    "{kernel:?} {heads} x {tokens} x {head_dim}: {err:e} from the reference, \
+                     {f32_err:e} from f32"
                 );
             }
         }

@@ -290,7 +290,7 @@ fn rounded_span(v: View<'_>) -> Vec<f32> {
 pub(crate) mod amx;
 
 #[cfg(target_arch = "x86_64")]
-mod avx512 {
+pub(crate) mod avx512 {
     //! The `vdpbf16ps` kernel, blocked in the manner of GotoBLAS: `b` is packed in panels of
     //! `NR` columns per block of `KC` inner values, `a` in strips of `MR` rows per task, and
     //! each `MR x NR` tile of `c` accumulates in 24 vector registers.
@@ -478,7 +478,7 @@ mod avx512 {
 
     /// `b` packed whole, block by block of the inner dimension (each block's first row, size
     /// and panels), the caller having checked the CPU's features and the view.
-    pub(super) fn pack(b: View<'_>) -> Vec<(usize, usize, Vec<u32>)> {
+    pub(crate) fn pack(b: View<'_>) -> Vec<(usize, usize, Vec<u32>)> {
         (0..b.rows)
             .step_by(KC)
             .map(|k0| {
@@ -489,40 +489,59 @@ mod avx512 {
     }
 
     /// `a b` for `b` of `n` columns packed by [`pack`], the caller having checked the CPU's
-    /// features and the views. Each task zeroes and fills its block of rows of `c` in one
-    /// pass over the inner dimension.
+    /// features and the views. Each task fills its block of rows of `c` ([`rows_product`]).
     pub(super) fn matmul(a: View<'_>, n: usize, panels: &[(usize, usize, Vec<u32>)]) -> Vec<f32> {
         let m = a.rows;
         let mc = super::rows_per_task(m, MR, MC);
         filled_init(m * n, mc * n, Vec::new, |ap, t, block| {
-            let rows = block.len() / n;
-            for (k0, kc, bp) in panels {
-                let pairs = kc.div_ceil(2);
-                let layout = pack_a(a, t * mc, rows, *k0, *kc, ap);
-                for p in 0..n.div_ceil(NR) {
-                    let cols = NR.min(n - p * NR);
-                    let panel = &bp[p * pairs * NR..][..pairs * NR];
-                    for s in 0..rows.div_ceil(MR) {
-                        let strip = &ap[s * pairs * MR..][..pairs * MR];
-                        let tile = Tile {
-                            pairs,
-                            rows: MR.min(rows - s * MR),
-                            cols,
-                            ldc: n,
-                            accumulate: *k0 > 0,
-                        };
-                        let out = &mut block[s * MR * n + p * NR..];
-                        // SAFETY: the caller checked the CPU's features.
-                        unsafe {
-                            match layout {
-                                Strip::PairMajor => tile.run::<false>(strip, panel, out),
-                                Strip::RowMajor => tile.run::<true>(strip, panel, out),
-                            }
+            rows_product(a, t * mc, n, panels, ap, block);
+        })
+    }
+
+    /// `c = a[r0..r0 + rows] b` on the calling thread, for `b` of `n` columns packed by
+    /// [`pack`] and `c` of `rows = c.len() / n` rows of `n`, in one pass over the inner
+    /// dimension: `c`'s values are overwritten, never read first (where `b` has no rows, `c`
+    /// is left as it was); `ap` holds the packed strips of `a`. Panics unless this CPU runs AVX512-BF16 (with AVX512-F and -BW).
+    pub(crate) fn rows_product(
+        a: View<'_>,
+        r0: usize,
+        n: usize,
+        panels: &[(usize, usize, Vec<u32>)],
+        ap: &mut Vec<u32>,
+        c: &mut [f32],
+    ) {
+        assert!(
+            super::Bf16Kernel::Avx512Bf16.runs_here(),
+            "this CPU does not run AVX512-BF16"
+        );
+        let rows = c.len() / n;
+        assert!(r0 + rows <= a.rows && c.len() == rows * n);
+        for (k0, kc, bp) in panels {
+            let pairs = kc.div_ceil(2);
+            let layout = pack_a(a, r0, rows, *k0, *kc, ap);
+            for p in 0..n.div_ceil(NR) {
+                let cols = NR.min(n - p * NR);
+                let panel = &bp[p * pairs * NR..][..pairs * NR];
+                for s in 0..rows.div_ceil(MR) {
+                    let strip = &ap[s * pairs * MR..][..pairs * MR];
+                    let tile = Tile {
+                        pairs,
+                        rows: MR.min(rows - s * MR),
+                        cols,
+                        ldc: n,
+                        accumulate: *k0 > 0,
+                    };
+                    let out = &mut c[s * MR * n + p * NR..];
+                    // SAFETY: the CPU's features were checked above.
+                    unsafe {
+                        match layout {
+                            Strip::PairMajor => tile.run::<false>(strip, panel, out),
+                            Strip::RowMajor => tile.run::<true>(strip, panel, out),
                         }
                     }
                 }
             }
-        })
+        }
     }
 
     /// One `MR x NR` register tile of `c`.

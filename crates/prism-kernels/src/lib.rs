@@ -292,9 +292,9 @@ pub fn attention(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
 }
 
 /// [`attention`] for `--precision bf16`: on the CPU backends in f32, the fused host kernel with
-/// its two products' operands in bf16 and their sums in f32 where the chosen [`Bf16Kernel`] has
-/// an attention path (AMX's tiles) and no gradient is needed; under a gradient, and with the
-/// other kernels, the f32 kernel. Elsewhere, as [`attention`].
+/// its two products' operands in bf16 and their sums in f32 where the chosen [`Bf16Kernel`] is
+/// a hardware one (AMX's tiles or `vdpbf16ps`) and no gradient is needed; under a gradient,
+/// and with the rounded kernel, the f32 kernel. Elsewhere, as [`attention`].
 pub fn attention_bf16(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
     attention_in(q, k, v, true)
 }
