@@ -107,17 +107,59 @@ pub fn forward_bf16(
     }
 }
 
-/// [`forward`] with `vdpbf16ps`: `q`, `k`, `v` and each row's exponentials `exp(scale (s -
-/// max s))` rounded to bf16, the products summed in f32, and the output rows divided by the
-/// exponentials' f32 sums (the roundings of [`forward_amx`]). Each head's `k^T` and `v` are
-/// packed once for all its blocks. Panics unless the CPU runs [`Bf16Kernel::Avx512Bf16`].
+/// [`forward`] with `vdpbf16ps` ([`forward_packed`]). Panics unless the CPU runs
+/// [`Bf16Kernel::Avx512Bf16`].
 #[cfg(target_arch = "x86_64")]
 fn forward_avx512(q: &[f32], k: &[f32], v: &[f32], dims: Dims, scale: f32) -> (Vec<f32>, Vec<f32>) {
     use crate::bf16::avx512::{pack, rows_product};
+    // Before the packing, which runs AVX512-BF16's instructions too.
     assert!(
         Bf16Kernel::Avx512Bf16.runs_here(),
         "this CPU does not run AVX512-BF16"
     );
+    forward_packed(
+        [q, k, v],
+        dims,
+        scale,
+        pack,
+        Vec::new,
+        |a, b, n, packed, c| rows_product(a, 0, n, b, packed, c),
+    )
+}
+
+/// [`forward`] on AMX's tiles ([`forward_packed`]). Panics unless the CPU runs
+/// [`Bf16Kernel::Amx`].
+#[cfg(target_arch = "x86_64")]
+fn forward_amx(q: &[f32], k: &[f32], v: &[f32], dims: Dims, scale: f32) -> (Vec<f32>, Vec<f32>) {
+    use crate::bf16::amx::{PackedA, PackedB, Tiles, product};
+    forward_packed(
+        [q, k, v],
+        dims,
+        scale,
+        |b| PackedB::new(b, 0, b.rows),
+        PackedA::default,
+        |a, b, n, packed, c| {
+            let tiles = Tiles::configure();
+            packed.pack(a, 0, a.rows, 0, a.cols);
+            product(&tiles, packed, b, c, n, false);
+        },
+    )
+}
+
+/// The bf16 forward passes: `q`, `k`, `v` and each row's exponentials `exp(scale (s - max s))`
+/// rounded to bf16, the products summed in f32, and the output rows divided by the
+/// exponentials' f32 sums. `pack` packs an operand `b` for a kernel's products, once per head
+/// for its `k^T` and `v`; `product(a, b, n, scratch, c)` writes `c = a b` (`n` columns) on the
+/// calling thread, with a worker thread's `scratch` made by `scratch()`.
+#[cfg(target_arch = "x86_64")]
+fn forward_packed<P: Sync, S: Send>(
+    [q, k, v]: [&[f32]; 3],
+    dims: Dims,
+    scale: f32,
+    pack: impl Fn(View<'_>) -> P + Sync + Send,
+    scratch: impl Fn() -> S + Sync + Send,
+    product: impl Fn(View<'_>, &P, usize, &mut S, &mut [f32]) + Sync + Send,
+) -> (Vec<f32>, Vec<f32>) {
     let (tokens, head_dim) = (dims.tokens, dims.head_dim);
     each_block(
         [q, k, v],
@@ -131,55 +173,16 @@ fn forward_avx512(q: &[f32], k: &[f32], v: &[f32], dims: Dims, scale: f32) -> (V
         },
         || {
             let scores = vec![0.0; BLOCK.min(tokens) * tokens];
-            (scores, Vec::new(), [0.0f32; BLOCK])
+            (scores, scratch(), [0.0f32; BLOCK])
         },
-        |(start, keys, values), b, o, lse, (p, packed, inv)| {
+        |(start, keys, values), b, o, lse, (p, s, inv)| {
             let rows = lse.len();
             let q = &q[start + b * BLOCK * head_dim..][..rows * head_dim];
             let (p, inv) = (&mut p[..rows * tokens], &mut inv[..rows]);
-            rows_product(View::rows(q, rows, head_dim), 0, tokens, keys, packed, p);
+            product(View::rows(q, rows, head_dim), keys, tokens, s, p);
             exponentials(p, tokens, scale, lse, inv);
             let o = zeroed(o);
-            rows_product(View::rows(p, rows, tokens), 0, head_dim, values, packed, o);
-            divide_rows(o, head_dim, inv);
-            Written::of(o)
-        },
-    )
-}
-
-/// [`forward`] on AMX's tiles: `q`, `k`, `v` and each row's exponentials `exp(scale (s -
-/// max s))` rounded to bf16, the products summed in f32, and the output rows divided by the
-/// exponentials' f32 sums. Each head's `k^T` and `v` are packed once for all its blocks.
-/// Panics unless the CPU runs [`Bf16Kernel::Amx`].
-#[cfg(target_arch = "x86_64")]
-fn forward_amx(q: &[f32], k: &[f32], v: &[f32], dims: Dims, scale: f32) -> (Vec<f32>, Vec<f32>) {
-    use crate::bf16::amx::{PackedA, PackedB, Tiles, product};
-    let (tokens, head_dim) = (dims.tokens, dims.head_dim);
-    each_block(
-        [q, k, v],
-        dims,
-        |h| {
-            let span = h * dims.per_head()..(h + 1) * dims.per_head();
-            let (k, v) = (&k[span.clone()], &v[span.clone()]);
-            let keys = PackedB::new(View::transposed(k, head_dim, tokens), 0, head_dim);
-            let values = PackedB::new(View::rows(v, tokens, head_dim), 0, tokens);
-            (span.start, keys, values)
-        },
-        || {
-            let scores = vec![0.0; BLOCK.min(tokens) * tokens];
-            (scores, PackedA::default(), [0.0f32; BLOCK])
-        },
-        |(start, keys, values), b, o, lse, (p, packed, inv)| {
-            let rows = lse.len();
-            let q = &q[start + b * BLOCK * head_dim..][..rows * head_dim];
-            let (p, inv) = (&mut p[..rows * tokens], &mut inv[..rows]);
-            let tiles = Tiles::configure();
-            packed.pack(View::rows(q, rows, head_dim), 0, rows, 0, head_dim);
-            product(&tiles, packed, keys, p, tokens, false);
-            exponentials(p, tokens, scale, lse, inv);
-            packed.pack(View::rows(p, rows, tokens), 0, rows, 0, tokens);
-            let o = zeroed(o);
-            product(&tiles, packed, values, o, head_dim, false);
+            product(View::rows(p, rows, tokens), values, head_dim, s, o);
             divide_rows(o, head_dim, inv);
             Written::of(o)
         },
