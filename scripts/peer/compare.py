@@ -206,16 +206,20 @@ def table(rounds):
         rule += "---|"
     print(head)
     print(rule)
+    # Each row's values over the rounds, by (what, res), in the first round's order.
+    by_key = {}
+    for one in per_round:
+        for row in one:
+            by_key.setdefault((row["what"], row["res"]), []).append(row)
     rows = []
-    for i, first in enumerate(per_round[0]):
-        ours = statistics.median(r[i]["prism_ms"] for r in per_round)
-        theirs = statistics.median(r[i]["torch_ms"] for r in per_round)
-        row = {"what": first["what"], "res": first["res"], "prism_ms": ours,
-               "torch_ms": theirs, "ratio": ours / theirs}
-        line = (f"| {row['what']} | {row['res']} | {ours:.1f} | {theirs:.1f} | "
-                f"{row['ratio']:.2f}x |")
+    for (what, res), timed in by_key.items():
+        ours = statistics.median(r["prism_ms"] for r in timed)
+        theirs = statistics.median(r["torch_ms"] for r in timed)
+        row = {"what": what, "res": res, "prism_ms": ours, "torch_ms": theirs,
+               "ratio": ours / theirs}
+        line = f"| {what} | {res} | {ours:.1f} | {theirs:.1f} | {row['ratio']:.2f}x |"
         if several:
-            ratios = [r[i]["ratio"] for r in per_round]
+            ratios = [r["ratio"] for r in timed]
             row["ratio_min"], row["ratio_max"] = min(ratios), max(ratios)
             line += f" {row['ratio_min']:.2f}x to {row['ratio_max']:.2f}x |"
         rows.append(row)

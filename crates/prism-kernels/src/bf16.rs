@@ -501,7 +501,8 @@ pub(crate) mod avx512 {
     /// `c = a[r0..r0 + rows] b` on the calling thread, for `b` of `n` columns packed by
     /// [`pack`] and `c` of `rows = c.len() / n` rows of `n`, in one pass over the inner
     /// dimension: `c`'s values are overwritten, never read first (where `b` has no rows, `c`
-    /// is left as it was); `ap` holds the packed strips of `a`. Panics unless this CPU runs AVX512-BF16 (with AVX512-F and -BW).
+    /// is left as it was); `ap` holds the packed strips of `a`. Panics unless this CPU runs
+    /// AVX512-BF16 (with AVX512-F and -BW).
     pub(crate) fn rows_product(
         a: View<'_>,
         r0: usize,
