@@ -407,10 +407,12 @@ mod tests {
         out
     }
 
-    /// The bf16 forward on every kernel this CPU runs: AMX and `vdpbf16ps` against the rounded
-    /// reference (to within one bf16 step of an exponential that rounds the other way), on
-    /// sizes that leave partial tiles, strips, panels, blocks of the inner dimension and
-    /// blocks of queries; the rounded kernel's f32 path against the f32 forward exactly.
+    /// The bf16 forward on every kernel this CPU runs (AMX on its tiles, or on their model
+    /// where the CPU has AVX512-BF16 and no tiles: see `bf16::amx`): AMX and `vdpbf16ps`
+    /// against the rounded reference (to within one bf16 step of an exponential that rounds
+    /// the other way), on sizes that leave partial tiles, strips, panels, blocks of the inner
+    /// dimension and blocks of queries; the rounded kernel's f32 path against the f32 forward
+    /// exactly.
     #[test]
     fn bf16_forward_matches_its_rounded_reference() {
         let sizes = [

@@ -671,10 +671,10 @@ mod tests {
         assert!(err.contains("not one of amx, avx512bf16, rounded"), "{err}");
     }
 
-    /// Every kernel this CPU runs, on sizes that leave partial tiles, strips and panels, more
-    /// than one block of the inner dimension (odd and even) and of rows, and each operand
-    /// row-major or transposed: within f32's rounding of the sums of the rounded operands'
-    /// exact products.
+    /// Every kernel this CPU runs (AMX on the tiles' model where the CPU has AVX512-BF16 and
+    /// no tiles), on sizes that leave partial tiles, strips and panels, more than one block of
+    /// the inner dimension (odd and even) and of rows, and each operand row-major or
+    /// transposed: within f32's rounding of the sums of the rounded operands' exact products.
     #[test]
     fn kernels_match_the_rounded_product() {
         let kernels: Vec<Bf16Kernel> =

@@ -8,6 +8,12 @@
 //!
 //! Linux gives a process the tile registers only on request ([`enable`]); the tile
 //! configuration is per thread, so every task loads it before its first tile.
+//!
+//! This crate's tests run the kernel on CPUs without AMX too: where the CPU has AVX512-BF16
+//! (which the packing needs) but no tiles, a scalar model stands in for the tile instructions
+//! of [`block_product`] ([`modelled`]), so that everything around them (the packing, the
+//! padding, the clipped copies, the callers' loops) is tested on such hosts as well. The model
+//! itself is checked against the tiles where a CPU has them.
 
 use std::arch::asm;
 use std::arch::x86_64::__cpuid_count;
@@ -27,14 +33,36 @@ const KC: usize = 512;
 /// The most rows one task takes (whole strips).
 const MC: usize = MR * 4;
 
-/// Whether the CPU has AMX-TILE and AMX-BF16 and Linux lets this process use the tiles.
+/// Whether the kernel runs here: on the tiles ([`granted`]), or in this crate's tests on their
+/// model ([`modelled`]).
 pub(super) fn available() -> bool {
-    static AVAILABLE: OnceLock<bool> = OnceLock::new();
-    *AVAILABLE.get_or_init(|| {
+    granted() || modelled()
+}
+
+/// Whether the CPU has AMX-TILE and AMX-BF16 and Linux lets this process use the tiles.
+fn granted() -> bool {
+    static GRANTED: OnceLock<bool> = OnceLock::new();
+    *GRANTED.get_or_init(|| {
         let edx = __cpuid_count(7, 0).edx;
         let (tile, bf16) = (edx >> 24 & 1 == 1, edx >> 22 & 1 == 1);
         tile && bf16 && enable()
     })
+}
+
+/// Whether [`block_product`] runs on its scalar model ([`model::block_product`]) instead of
+/// the tiles: only in this crate's tests, on a CPU with AVX512-BF16 and no AMX tiles.
+#[cfg(test)]
+fn modelled() -> bool {
+    !granted()
+        && is_x86_feature_detected!("avx512f")
+        && is_x86_feature_detected!("avx512bw")
+        && is_x86_feature_detected!("avx512bf16")
+}
+
+/// Outside this crate's tests the kernel runs on the tiles only.
+#[cfg(not(test))]
+fn modelled() -> bool {
+    false
 }
 
 /// Asks Linux for the tile data state (`arch_prctl(ARCH_REQ_XCOMP_PERM, XTILEDATA)`), once
@@ -86,18 +114,22 @@ impl Tiles {
     /// Configures this thread's tiles. Panics unless [`available`].
     pub(crate) fn configure() -> Self {
         assert!(available(), "AMX tiles are not available on this CPU");
-        let config = Config::new();
-        // SAFETY: `available` checked the CPU and the permission; the configuration is 64
-        // valid bytes.
-        unsafe { asm!("ldtilecfg [{}]", in(reg) config.0.as_ptr(), options(nostack)) };
+        if granted() {
+            let config = Config::new();
+            // SAFETY: `granted` checked the CPU and the permission; the configuration is 64
+            // valid bytes.
+            unsafe { asm!("ldtilecfg [{}]", in(reg) config.0.as_ptr(), options(nostack)) };
+        }
         Self(PhantomData)
     }
 }
 
 impl Drop for Tiles {
     fn drop(&mut self) {
-        // SAFETY: releases the tiles this thread configured.
-        unsafe { asm!("tilerelease", options(nostack, nomem)) };
+        if granted() {
+            // SAFETY: releases the tiles this thread configured.
+            unsafe { asm!("tilerelease", options(nostack, nomem)) };
+        }
     }
 }
 
@@ -272,6 +304,12 @@ unsafe fn block_product(
 ) {
     debug_assert!(strip.len() >= (MR - 1) * stride + pairs && panel.len() >= pairs * NR);
     debug_assert_eq!(pairs % TILE, 0);
+    #[cfg(test)]
+    if modelled() {
+        // SAFETY: as for the tiles, which the model reads and writes alike.
+        unsafe { model::block_product(strip, stride, panel, pairs, c, ldc) };
+        return;
+    }
     let (a_stride, b_stride, c_stride) = (4 * stride, 4 * NR, 4 * ldc);
     // SAFETY: tile step `s` reads strip words `i * stride + 16 s .. + 16` for rows `i < 32`
     // and panel words `(16 s + q) * NR .. + 32` for `q < 16`, all inside the slices; the
@@ -317,5 +355,114 @@ unsafe fn block_product(
             sc = in(reg) c_stride,
             options(nostack)
         );
+    }
+}
+
+/// A scalar model of [`block_product`]'s tiles, for this crate's tests on CPUs without them.
+#[cfg(test)]
+mod model {
+    use super::{MR, NR, TILE};
+
+    /// The bf16 value in the low (`0`) or high (`1`) half of a word, as an f32.
+    pub(super) fn half(word: u32, h: usize) -> f32 {
+        f32::from_bits(if h == 0 {
+            word << 16
+        } else {
+            word & 0xffff_0000
+        })
+    }
+
+    /// [`super::block_product`] as its tiles compute it: each of the four 16 x 16 sums starts
+    /// at zero, and every tile step's `tdpbf16ps` adds to each sum, pair by pair, its two
+    /// exact products (the high halves' first), rounding to f32 after each.
+    ///
+    /// # Safety
+    /// As [`super::block_product`]'s, but for the CPU: `c` points at 32 writable rows of 32
+    /// values at row stride `ldc`.
+    pub(super) unsafe fn block_product(
+        strip: &[u32],
+        stride: usize,
+        panel: &[u32],
+        pairs: usize,
+        c: *mut f32,
+        ldc: usize,
+    ) {
+        let mut sums = [[0.0f32; NR]; MR];
+        for step in 0..pairs / TILE {
+            for (i, row) in sums.iter_mut().enumerate() {
+                for (j, sum) in row.iter_mut().enumerate() {
+                    for q in TILE * step..TILE * (step + 1) {
+                        let (a, b) = (strip[i * stride + q], panel[q * NR + j]);
+                        *sum += half(a, 1) * half(b, 1);
+                        *sum += half(a, 0) * half(b, 0);
+                    }
+                }
+            }
+        }
+        for (i, row) in sums.iter().enumerate() {
+            // SAFETY: row `i < 32` of `c` holds 32 writable values (the caller's promise).
+            let out = unsafe { std::slice::from_raw_parts_mut(c.add(i * ldc), NR) };
+            out.copy_from_slice(row);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bf16::bf16_bits;
+    use crate::test_util::values;
+
+    /// Words of two bf16 values each, from uniform values in [-1, 1).
+    fn words(n: usize, seed: u64) -> Vec<u32> {
+        values(2 * n, seed)
+            .chunks(2)
+            .map(|p| bf16_bits(p[0]) as u32 | (bf16_bits(p[1]) as u32) << 16)
+            .collect()
+    }
+
+    /// The model against the tiles, on a block of three tile steps written at a row stride
+    /// wider than the block: the same sums, to within f32's rounding of their order (the
+    /// hardware's order inside a `tdpbf16ps` is not documented), and nothing written between
+    /// the rows. Runs where the CPU grants the tiles; elsewhere it says so and checks nothing.
+    #[test]
+    fn the_model_computes_what_the_tiles_compute() {
+        if !granted() {
+            eprintln!("no AMX tiles here: the model stands in for them, unchecked");
+            return;
+        }
+        let (pairs, ldc) = (3 * TILE, NR + 5);
+        let stride = pairs + TILE;
+        let (strip, panel) = (words(MR * stride, 1), words(pairs * NR, 2));
+        let mut tiles = vec![-7.0f32; MR * ldc];
+        let mut modelled = tiles.clone();
+        let configured = Tiles::configure();
+        // SAFETY: the tiles are configured; the strip holds 32 rows at `stride` of `pairs`
+        // pairs, the panel `pairs` rows of `NR`, and each output 32 rows at `ldc`.
+        unsafe {
+            block_product(&strip, stride, &panel, pairs, tiles.as_mut_ptr(), ldc);
+            model::block_product(&strip, stride, &panel, pairs, modelled.as_mut_ptr(), ldc);
+        }
+        drop(configured);
+        for i in 0..MR {
+            for j in 0..ldc {
+                let (t, m) = (tiles[i * ldc + j], modelled[i * ldc + j]);
+                if j >= NR {
+                    assert_eq!((t, m), (-7.0, -7.0), "row {i} column {j} was written");
+                    continue;
+                }
+                let magnitude: f32 = (0..pairs)
+                    .flat_map(|q| {
+                        let (a, b) = (strip[i * stride + q], panel[q * NR + j]);
+                        [0, 1].map(|h| (model::half(a, h) * model::half(b, h)).abs())
+                    })
+                    .sum();
+                let bound = 2.0 * (2 * pairs) as f32 * f32::EPSILON * magnitude;
+                assert!(
+                    (t - m).abs() <= bound,
+                    "row {i} column {j}: tiles {t}, model {m}"
+                );
+            }
+        }
     }
 }
