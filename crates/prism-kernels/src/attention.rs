@@ -369,6 +369,7 @@ fn score_gradient(p: &[f32], ds: &mut [f32], o: &[f32], grad: &[f32], head_dim: 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_util::bits;
 
     /// Values in [-2, 2).
     fn values(n: usize, seed: u64) -> Vec<f32> {
@@ -412,9 +413,15 @@ mod tests {
     /// against the rounded reference (to within one bf16 step of an exponential that rounds
     /// the other way), on sizes that leave partial tiles, strips, panels, blocks of the inner
     /// dimension and blocks of queries; the rounded kernel's f32 path against the f32 forward
-    /// exactly.
+    /// exactly. Each kernel gives the same bits on one thread, where a worker's scratch serves
+    /// several blocks in turn, as on the shared pool, where most blocks get fresh scratch: a
+    /// block that reads what the one before it left would differ.
     #[test]
     fn bf16_forward_matches_its_rounded_reference() {
+        let one_thread = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
         let sizes = [
             (1, 1, 1),
             (2, 45, 24),
@@ -438,6 +445,12 @@ mod tests {
                     continue;
                 }
                 let (o, lse) = forward_bf16(kernel, &q, &k, &v, dims, scale);
+                let serial = one_thread.install(|| forward_bf16(kernel, &q, &k, &v, dims, scale));
+                assert_eq!(
+                    (bits(&serial.0), bits(&serial.1)),
+                    (bits(&o), bits(&lse)),
+                    "{kernel:?} {heads} x {tokens} x {head_dim}: one thread differs"
+                );
                 if kernel == Bf16Kernel::Rounded {
                     assert_eq!((o, lse), f32_out, "{kernel:?} takes the f32 path");
                     continue;
