@@ -22,13 +22,13 @@ use prism_train::{
 /// OUT/phases.json.
 ///
 /// The step counts are scaled down from the config's so the job takes minutes on a 2-core CPU
-/// (flex; 5.8 measured): 300 teacher and 150 student steps, the protocol's 100 target views
-/// per test subject. --fast uses the tiny config (64 px) on 30 synthetic people (480 and 360
-/// steps, 10 views; 4.8 minutes measured), the fewest measured steps at which both models beat
-/// copy-source with a lower LPIPS.
+/// (flex; 4.6 to 5.3 measured on an AMD EPYC Zen 4): 300 teacher and 150 student steps, the
+/// protocol's 100 target views per test subject. --fast uses the tiny config (64 px) on 30
+/// synthetic people (960 and 720 steps, the student distilled at lr 3e-4, 10 views; 3.0 to
+/// 3.3 minutes measured there), where both models beat copy-source with a lower LPIPS.
 #[derive(Args, Debug)]
 pub struct QuickstartArgs {
-    /// The tiny config (64 px) on 30 people, 480 + 360 steps, 10 views per test subject.
+    /// The tiny config (64 px) on 30 people, 960 + 720 steps, 10 views per test subject.
     #[arg(long)]
     fast: bool,
     /// Folder of the two runs and their evaluations [default: runs/quickstart or

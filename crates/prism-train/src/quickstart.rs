@@ -5,9 +5,10 @@
 //! their time ([`prism_core::phases`]) is in its [`ModelPhases`], tabulated by [`phase_table`].
 //!
 //! The step counts are scaled down from the configs' so the whole job fits a time budget on a
-//! 2-core CPU ([`QuickstartPlan::standard`]: the small config, 5.8 minutes measured;
-//! [`QuickstartPlan::fast`]: the tiny config on 30 people, 4.8 minutes measured); the
-//! distillation schedule is compressed to the student's steps ([`compress_schedule`]).
+//! 2-core CPU ([`QuickstartPlan::standard`]: the small config, 4.6 to 5.3 minutes measured on
+//! an AMD EPYC Zen 4, more on slower hosts: the README's table; [`QuickstartPlan::fast`]: the
+//! tiny config on 30 people, 3.0 to 3.3 minutes measured there); the distillation schedule is
+//! compressed to the student's steps ([`compress_schedule`]).
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -62,8 +63,8 @@ pub struct QuickstartPlan {
 
 impl QuickstartPlan {
     /// The default plan: the small config, 300 teacher and 150 student steps (the config's
-    /// 600 teacher steps alone take about 8 minutes on the 2-core CPU), the protocol's 100
-    /// views per test subject (the two evaluations take about 1.5 minutes).
+    /// 600 teacher steps alone take about 6 minutes on the 2-core AMD EPYC Zen 4), the
+    /// protocol's 100 views per test subject (the two evaluations take about 40 s there).
     ///
     /// # Errors
     /// Never for the shipped config; a parse error otherwise.
@@ -78,10 +79,13 @@ impl QuickstartPlan {
     }
 
     /// `--fast`: the tiny config on [`FAST_SUBJECTS`] synthetic people (3 held out) instead of
-    /// its 6, 480 teacher and 360 student steps, 10 views per test subject. On the tiny
-    /// config's 5 training people the model memorises them and barely beats copy-source on a
-    /// new one; fewer steps leave LPIPS above copy-source's (BENCHMARKS.md, "The tiny config
-    /// against copy-source").
+    /// its 6, 960 teacher and 720 student steps, the student distilled at `lr = 3e-4`, 10
+    /// views per test subject. On the tiny config's 5 training people the model memorises them
+    /// and barely beats copy-source on a new one (BENCHMARKS.md, "The tiny config against
+    /// copy-source"). At 480 + 360 steps and the tiny config's distillation `lr = 1e-3` (the
+    /// plan until the kernels made it 2.7x faster), the student's LPIPS ended above
+    /// copy-source's; at this plan both models score under it at two training seeds
+    /// (BENCHMARKS.md, "The `--fast` quick start re-planned").
     ///
     /// # Errors
     /// Never for the shipped config; a parse error otherwise.
@@ -89,11 +93,12 @@ impl QuickstartPlan {
         let mut config = TrainingConfig::parse(TINY_CONFIG, Path::new("configs/tiny.toml"))?;
         config.data.subjects = FAST_SUBJECTS;
         config.data.test_fraction = 0.1;
+        config.distill.lr = 3e-4;
         Ok(Self {
             name: "tiny".into(),
             config,
-            teacher_steps: 480,
-            student_steps: 360,
+            teacher_steps: 960,
+            student_steps: 720,
             eval_views: 10,
         })
     }
