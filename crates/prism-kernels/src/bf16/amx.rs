@@ -421,6 +421,39 @@ mod tests {
             .collect()
     }
 
+    /// A `PackedA` used again (as a task's or a worker's is) holds nothing of what it held:
+    /// infinities packed first, beyond the second matrix's pairs and rows, would meet `b`'s
+    /// zero padding and make NaNs. The second product matches the rounded operands' sums.
+    #[test]
+    fn a_packing_used_again_keeps_nothing_of_the_last() {
+        if !available() {
+            eprintln!("no AMX tiles or model here");
+            return;
+        }
+        let infinities = vec![f32::INFINITY; 40 * 70];
+        let mut packed = PackedA::default();
+        packed.pack(View::rows(&infinities, 40, 70), 0, 40, 0, 70);
+        let (m, k, n) = (33, 21, 5);
+        let (a, b) = (values(m * k, 1), values(k * n, 2));
+        packed.pack(View::rows(&a, m, k), 0, m, 0, k);
+        let panels = PackedB::new(View::rows(&b, k, n), 0, k);
+        let mut c = vec![f32::NAN; m * n];
+        let tiles = Tiles::configure();
+        product(&tiles, &packed, &panels, &mut c, n, false);
+        drop(tiles);
+        let r = |x: f32| crate::bf16::round_bf16(x) as f64;
+        for i in 0..m {
+            for j in 0..n {
+                let want: f64 = (0..k).map(|p| r(a[i * k + p]) * r(b[p * n + j])).sum();
+                let got = c[i * n + j] as f64;
+                assert!(
+                    (got - want).abs() < 1e-5,
+                    "({i}, {j}): {got} against {want}"
+                );
+            }
+        }
+    }
+
     /// The model against the tiles, on a block of three tile steps written at a row stride
     /// wider than the block: the same sums, to within f32's rounding of their order (the
     /// hardware's order inside a `tdpbf16ps` is not documented), and nothing written between
