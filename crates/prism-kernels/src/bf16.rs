@@ -313,7 +313,7 @@ pub(crate) mod avx512 {
 
     /// Two bf16 values in one 32-bit word, the first in the low half (`vdpbf16ps`' order).
     #[inline(always)]
-    fn pair(lo: f32, hi: f32) -> u32 {
+    pub(super) fn pair(lo: f32, hi: f32) -> u32 {
         bf16_bits(lo) as u32 | (bf16_bits(hi) as u32) << 16
     }
 

@@ -45,8 +45,9 @@ pub trait FusedOps: Backend {
     ) -> FloatTensor<Self>;
     /// `softmax(q k^T / sqrt(d_h)) v` on `[B, H, T, d_h]` tensors. With `bf16`, the two
     /// products take bf16 operands where the CPU's bf16 kernel is a hardware one (AMX's tiles
-    /// or `vdpbf16ps`; see [`Bf16Kernel`]) and no gradient is needed; under a gradient, the f32 kernels
-    /// run forward and backward, so the gradient is the exact one of the output computed.
+    /// or `vdpbf16ps`; see [`Bf16Kernel`]) and no gradient is needed; under a gradient, the f32
+    /// kernels run forward and backward, so the gradient is the exact one of the output
+    /// computed.
     fn fused_attention(
         q: FloatTensor<Self>,
         k: FloatTensor<Self>,

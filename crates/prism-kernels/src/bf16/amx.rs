@@ -361,7 +361,7 @@ unsafe fn block_product(
 /// A scalar model of [`block_product`]'s tiles, for this crate's tests on CPUs without them.
 #[cfg(test)]
 mod model {
-    use super::{MR, NR, TILE};
+    use super::{MR, NR};
 
     /// The bf16 value in the low (`0`) or high (`1`) half of a word, as an f32.
     pub(super) fn half(word: u32, h: usize) -> f32 {
@@ -372,9 +372,9 @@ mod model {
         })
     }
 
-    /// [`super::block_product`] as its tiles compute it: each of the four 16 x 16 sums starts
-    /// at zero, and every tile step's `tdpbf16ps` adds to each sum, pair by pair, its two
-    /// exact products (the high halves' first), rounding to f32 after each.
+    /// [`super::block_product`] as its tiles compute it: each sum starts at zero, and the tile
+    /// steps' `tdpbf16ps` add to it, pair by pair in order, the pair's two exact products (the
+    /// high halves' first), rounding to f32 after each.
     ///
     /// # Safety
     /// As [`super::block_product`]'s, but for the CPU: `c` points at 32 writable rows of 32
@@ -388,14 +388,12 @@ mod model {
         ldc: usize,
     ) {
         let mut sums = [[0.0f32; NR]; MR];
-        for step in 0..pairs / TILE {
-            for (i, row) in sums.iter_mut().enumerate() {
-                for (j, sum) in row.iter_mut().enumerate() {
-                    for q in TILE * step..TILE * (step + 1) {
-                        let (a, b) = (strip[i * stride + q], panel[q * NR + j]);
-                        *sum += half(a, 1) * half(b, 1);
-                        *sum += half(a, 0) * half(b, 0);
-                    }
+        for (i, row) in sums.iter_mut().enumerate() {
+            for (j, sum) in row.iter_mut().enumerate() {
+                for q in 0..pairs {
+                    let (a, b) = (strip[i * stride + q], panel[q * NR + j]);
+                    *sum += half(a, 1) * half(b, 1);
+                    *sum += half(a, 0) * half(b, 0);
                 }
             }
         }
@@ -410,14 +408,14 @@ mod model {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bf16::bf16_bits;
+    use crate::bf16::avx512::pair;
     use crate::test_util::values;
 
     /// Words of two bf16 values each, from uniform values in [-1, 1).
     fn words(n: usize, seed: u64) -> Vec<u32> {
         values(2 * n, seed)
             .chunks(2)
-            .map(|p| bf16_bits(p[0]) as u32 | (bf16_bits(p[1]) as u32) << 16)
+            .map(|p| pair(p[0], p[1]))
             .collect()
     }
 
