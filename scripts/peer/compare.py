@@ -171,15 +171,16 @@ def main():
                                extra=["--dtype", args.precision])
         rounds.append({"prism": prism, "torch": torch_rows,
                        "cpu_steal": {"prism": prism_steal, "torch": steal_since(before)}})
-    rows = table(rounds)
+    per_round = [round_rows(r) for r in rounds]
+    rows = table(per_round)
     steals = [f"prism {r['cpu_steal']['prism']}, PyTorch {r['cpu_steal']['torch']}"
               for r in rounds]
     print("CPU steal: " + "; ".join(steals))
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"rows": rows, "cpu_steal": rounds[-1]["cpu_steal"],
-                       "rounds": [{"rows": round_rows(r), "cpu_steal": r["cpu_steal"]}
-                                  for r in rounds]}, f, indent=1)
+                       "rounds": [{"rows": one, "cpu_steal": r["cpu_steal"]}
+                                  for one, r in zip(per_round, rounds)]}, f, indent=1)
 
 
 def round_rows(one):
@@ -193,16 +194,15 @@ def round_rows(one):
             for k in keys]
 
 
-def table(rounds):
-    """Prints the Markdown table of `rounds` (each `{"prism", "torch"}` rows by key) and returns
+def table(per_round):
+    """Prints the Markdown table of the rounds' rows (each round's from `round_rows`) and returns
     its rows: each side's median over the rounds and their ratio; with several rounds, also the
     lowest and highest of the rounds' own ratios (`ratio_min`, `ratio_max`)."""
-    per_round = [round_rows(r) for r in rounds]
-    several = len(rounds) > 1
+    several = len(per_round) > 1
     head = "| what | res | prism ms | PyTorch ms | prism / PyTorch |"
     rule = "|---|---|---|---|---|"
     if several:
-        head += f" rounds' ratios ({len(rounds)}) |"
+        head += f" rounds' ratios ({len(per_round)}) |"
         rule += "---|"
     print(head)
     print(rule)

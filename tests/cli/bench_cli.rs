@@ -214,7 +214,7 @@ fn the_pytorch_comparison_takes_the_median_of_its_rounds() {
          side = lambda ms: {{('linear', 128): {{'ms': ms}}, ('train_step', 128): {{'ms': 2 * ms}}}}\n\
          rounds = [dict(prism=side(p), torch=side(t)) for p, t in [(10, 20), (30, 20), (20, 40)]]\n\
          rounds[0]['prism'][('teacher', 128)] = {{'ms': 5}}\n\
-         with contextlib.redirect_stdout(io.StringIO()) as table:\n    rows = compare.table(rounds)\n\
+         with contextlib.redirect_stdout(io.StringIO()) as table:\n    rows = compare.table([compare.round_rows(r) for r in rounds])\n\
          print(json.dumps(dict(rows=rows, table=table.getvalue())))",
     );
     let mut python = Command::new("python3");
