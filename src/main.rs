@@ -76,6 +76,9 @@ enum Command {
     Ablate(commands::ablate::AblateArgs),
     /// A live viewer in the browser: move the camera around a person, watch the model answer.
     View(commands::view::ViewArgs),
+    /// Measure on this machine's GPU what runs fastest, and keep the choice (`tune attention`).
+    #[command(subcommand)]
+    Tune(commands::tune::TuneCommand),
 }
 
 thread_local! {
@@ -126,6 +129,7 @@ impl Command {
             Command::Serve(args) => args.run(),
             Command::Ablate(args) => args.run(),
             Command::View(args) => args.run(),
+            Command::Tune(cmd) => cmd.run(),
         }
     }
 }
@@ -143,6 +147,8 @@ fn main() {
             default_hook(info);
         }
     }));
+    // Attention on a GPU takes the kernels `prism tune attention` measured fastest there.
+    commands::tune::record::register();
     let command = Cli::parse().command;
     let result = if command.runs_on_pool() {
         // `scope` runs its closure on a worker of the global pool (the caller waits).

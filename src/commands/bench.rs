@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use super::args::{DataArgs, JobArgs};
+use super::tune::record::Adapter;
 use anyhow::Context;
 use clap::{Args, Subcommand};
 use prism_core::BackendKind;
@@ -350,11 +351,12 @@ impl TableArgs {
             String::new()
         };
         println!(
-            "{} on {} ({}), blocks in {}{kernels}",
+            "{} on {} ({}), blocks in {}{kernels}{}",
             path.display(),
             self.backend,
             device_name(&device),
-            self.precision
+            self.precision,
+            attention_in_force(&device)
         );
         print_header();
         let mut rows = Vec::new();
@@ -435,9 +437,18 @@ impl TableArgs {
     }
 }
 
-/// The adapter's name on GPU backends, the backend otherwise.
+/// The adapter's name on GPU backends, the backend's device otherwise.
 fn device_name(device: &burn::tensor::Device) -> String {
-    format!("{device:?}")
+    Adapter::of(device).map_or_else(|| format!("{device:?}"), |adapter| adapter.name)
+}
+
+/// On a GPU backend, `, attention` and the kernels in force with where they come from; empty
+/// on the CPU backends, where f32 attention is the fused host kernel.
+fn attention_in_force(device: &burn::tensor::Device) -> String {
+    if prism_kernels::is_host(device) {
+        return String::new();
+    }
+    format!(", attention {}", super::tune::in_force(device))
 }
 
 /// Arguments of `prism bench precision`.

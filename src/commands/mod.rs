@@ -16,4 +16,5 @@ pub mod quickstart;
 pub mod serve;
 pub mod splat;
 pub mod train;
+pub mod tune;
 pub mod view;

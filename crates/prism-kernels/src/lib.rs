@@ -40,6 +40,7 @@ mod conv;
 pub mod device;
 mod elementwise;
 mod extension;
+mod gpu_attention;
 mod heads;
 mod host;
 mod isa;
@@ -62,6 +63,7 @@ use burn::tensor::{DType, Device, Tensor};
 pub use adamw::AdamWStep;
 pub use bf16::Bf16Kernel;
 pub use extension::FusedOps;
+pub use gpu_attention::{AttentionKernel, ChoiceOrigin, GpuAttention, MeasuredChoice};
 pub use heads::Mixing;
 pub use host::ndarray_f32_values;
 pub use isa::HostIsa;
@@ -282,7 +284,7 @@ fn host_conv_padding(layer: &Conv2d, x: &Tensor<4>, weight: &Tensor<4>) -> Optio
 /// Softmax attention `softmax(q k^T / sqrt(d_h)) v` on `[B, H, T, d_h]` tensors of one shape.
 ///
 /// On the CPU backends in f32: the fused host kernel. Elsewhere (GPU backends, half precision
-/// on the CPU) the path [`GpuAttention::current`] names: prism's flash kernels (module
+/// on the CPU) the kernel [`GpuAttention::current`] names: prism's flash kernels (module
 /// `device`, GPU backends only), prism's composition matmul, softmax, matmul ([`unfused`]), or
 /// Burn's attention op, which is fused on the backends that have one (with cooperative matrices
 /// where the adapter has them) but is only taken when no gradient is needed (under autodiff
@@ -380,12 +382,12 @@ fn attention_in(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>, bf16: bool) -> Tensor<
         ));
     }
     let tracked = q.is_tracked() || k.is_tracked() || v.is_tracked();
-    let path = GpuAttention::current();
+    let kernel = GpuAttention::current(&q.device()).kernel(tracked);
     #[cfg(any(feature = "wgpu", feature = "cuda"))]
-    if device::supported(&q, &k, &v) && path.takes_flash(tracked) {
+    if kernel == AttentionKernel::Flash && device::supported(&q, &k, &v) {
         return device::flash(q, k, v);
     }
-    if tracked || path == GpuAttention::Unfused {
+    if tracked || kernel == AttentionKernel::Unfused {
         return unfused::attention(q, k, v);
     }
     burn::tensor::module::attention(
@@ -400,88 +402,4 @@ fn attention_in(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>, bf16: bool) -> Tensor<
             is_causal: false,
         },
     )
-}
-
-/// Which attention the backends without a fused kernel (the GPU backends) run: for the process,
-/// the `PRISM_ATTENTION` environment variable (read once), so that one binary can time each
-/// (`PRISM_ATTENTION=flash prism bench`); for one thread for a while, [`GpuAttention::run`], so
-/// that a test compares the paths in one process without changing its environment.
-///
-/// The default stays on Burn's ops until a training run of the model through the flash
-/// kernels has been compared with Burn's on a GPU (lavapipe runs the tiny model's forward pass
-/// and training step through them in `tests/cli/device/backend.rs`); `auto` keeps Burn's fused op
-/// for inference, which can use cooperative matrices.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum GpuAttention {
-    /// `auto`: prism's flash kernels for training (forward and backward without the `T x T`
-    /// scores), Burn's fused attention op for inference.
-    Auto,
-    /// `flash`: prism's flash kernels for training and inference.
-    Flash,
-    /// `unfused`: prism's matmul-softmax-matmul ([`unfused`]) for training and inference (the
-    /// reference the other two are timed against).
-    Unfused,
-    /// `burn` (the default): Burn's ops only: its fused attention op for inference,
-    /// matmul-softmax-matmul (which keeps the scores for the backward pass) for training.
-    #[default]
-    Burn,
-}
-
-thread_local! {
-    /// The choice [`GpuAttention::run`] put in force on this thread, if any.
-    static ON_THIS_THREAD: std::cell::Cell<Option<GpuAttention>> = const {
-        std::cell::Cell::new(None)
-    };
-}
-
-impl GpuAttention {
-    /// The choice of `PRISM_ATTENTION` (`auto`, `flash`, `unfused` or `burn`); unset is
-    /// `burn`, and any other value is reported on stderr and taken as `burn`.
-    pub fn chosen() -> Self {
-        static CHOSEN: std::sync::OnceLock<GpuAttention> = std::sync::OnceLock::new();
-        *CHOSEN.get_or_init(|| match std::env::var("PRISM_ATTENTION").as_deref() {
-            Ok("auto") => Self::Auto,
-            Ok("flash") => Self::Flash,
-            Ok("unfused") => Self::Unfused,
-            Err(_) | Ok("burn") => Self::Burn,
-            Ok(other) => {
-                eprintln!(
-                    "prism: PRISM_ATTENTION={other} is not one of auto, flash, unfused, burn; \
-                     using burn"
-                );
-                Self::Burn
-            }
-        })
-    }
-
-    /// The choice in force on this thread: the one [`GpuAttention::run`] set around the
-    /// current call, else [`GpuAttention::chosen`].
-    pub fn current() -> Self {
-        ON_THIS_THREAD.get().unwrap_or_else(Self::chosen)
-    }
-
-    /// Runs `f` with attention on this thread taking this path, whatever `PRISM_ATTENTION`
-    /// says, and restores the previous choice after (also when `f` panics). The choice is
-    /// made when [`attention`] is called, so a backward pass runs the path its forward pass
-    /// took, inside `f` or not.
-    pub fn run<R>(self, f: impl FnOnce() -> R) -> R {
-        /// Puts the previous choice back when dropped.
-        struct Restore(Option<GpuAttention>);
-        impl Drop for Restore {
-            fn drop(&mut self) {
-                ON_THIS_THREAD.set(self.0);
-            }
-        }
-        let _restore = Restore(ON_THIS_THREAD.replace(Some(self)));
-        f()
-    }
-
-    /// Whether attention with (`tracked`) or without a gradient takes prism's flash kernels.
-    pub fn takes_flash(self, tracked: bool) -> bool {
-        match self {
-            Self::Auto => tracked,
-            Self::Flash => true,
-            Self::Unfused | Self::Burn => false,
-        }
-    }
 }

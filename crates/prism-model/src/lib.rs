@@ -52,7 +52,7 @@ pub use stages::attention::{AttentionKind, FeatureMap, SelfAttention};
 pub use stages::block::{Mlp, PrismBlock};
 pub use stages::{HiddenStates, StageOne, StageThree};
 pub use tokenizer::Tokenizer;
-pub use tools::bench::{BenchOptions, BenchRow, bench_forward, protocol_views};
+pub use tools::bench::{BenchOptions, BenchRow, bench_forward, median, protocol_views};
 pub use tools::info::{BlockInfo, FlopCounts, ModelInfo, ParameterCounts};
 pub use tools::lvsm::{
     BlockPlacement, FreshPart, LvsmCheckpoint, LvsmConversion, LvsmLayout, LvsmTensor,

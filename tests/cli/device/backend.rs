@@ -138,7 +138,7 @@ fn assert_outputs_close(what: &str, got: &[Vec<f32>; 3], want: &[Vec<f32>; 3], t
 }
 
 /// The tiny model's forward pass on wgpu against flex, and on wgpu through prism's flash
-/// kernels (`GpuAttention::Flash`) against the default attention (Burn's fused op). The two
+/// kernels (`GpuAttention::FLASH`) against the default attention (Burn's fused op). The two
 /// wgpu passes must differ in some bit, or the flash kernels did not run.
 #[test]
 #[ignore = "minutes on a software adapter: run with `--ignored device::backend`"]
@@ -147,12 +147,16 @@ fn tiny_forward_on_wgpu_matches_flex_through_either_attention() {
     let Some(wgpu) = common::wgpu_device() else {
         return;
     };
-    assert_eq!(GpuAttention::current(), GpuAttention::Burn, "the default");
+    assert_eq!(
+        GpuAttention::current(&wgpu),
+        GpuAttention::BURN,
+        "the default"
+    );
     let forward = TinyForward::new(5);
     let want = forward.run(&Device::flex());
     let got = forward.run(&wgpu);
     assert_outputs_close("wgpu against flex", &got, &want, 1e-3);
-    let flash = GpuAttention::Flash.run(|| forward.run(&wgpu));
+    let flash = GpuAttention::FLASH.run(|| forward.run(&wgpu));
     assert_outputs_close("flash against Burn's attention op", &flash, &got, 1e-4);
     assert!(flash[1] != got[1], "the flash kernels did not run");
 }
@@ -262,7 +266,7 @@ fn one_training_step_on_wgpu_matches_flex_through_either_attention_without_geome
     assert!(moved > 10, "only {moved} parameters moved");
 
     let (loss_flash, params_flash, reads_flash) =
-        GpuAttention::Flash.run(|| sgd_step(&config, &batch, &initial, &wgpu));
+        GpuAttention::FLASH.run(|| sgd_step(&config, &batch, &initial, &wgpu));
     assert_eq!(reads_flash, 0, "geometry reads of the step through flash");
     assert!(
         (loss_flash - loss_wgpu).abs() <= 1e-5 * loss_wgpu.abs(),

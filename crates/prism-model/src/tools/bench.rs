@@ -137,8 +137,8 @@ pub fn bench_forward(
     }
 }
 
-/// The median of sorted values.
-fn median(sorted: &[f64]) -> f64 {
+/// The median of sorted values (the mean of the middle two of an even count).
+pub fn median(sorted: &[f64]) -> f64 {
     let n = sorted.len();
     if n % 2 == 1 {
         sorted[n / 2]

@@ -1,0 +1,319 @@
+//! `prism tune`: measure, on this machine's GPU, what is fastest, and keep the choice.
+//!
+//! `prism tune attention` times softmax attention through each kernel the GPU backends have
+//! (Burn's attention op, prism's flash kernels, prism's matmul-softmax-matmul) at a config's
+//! shapes, with and without a gradient, and records the fastest of each for the adapter
+//! ([`record`]). From then on, attention on that adapter takes them wherever `PRISM_ATTENTION`
+//! does not say otherwise.
+
+pub mod record;
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use burn::tensor::{Device, Distribution, Tensor};
+use clap::{Args, Subcommand};
+use prism_core::BackendKind;
+use prism_kernels::{AttentionKernel, ChoiceOrigin, GpuAttention};
+use prism_model::{Precision, load_config, median, parse_config};
+
+use record::{Adapter, Choice, KernelTime, Record, Shape};
+
+/// What to tune.
+#[derive(Subcommand, Debug)]
+pub enum TuneCommand {
+    /// Time softmax attention through each GPU kernel (Burn's attention op, prism's flash
+    /// kernels, prism's matmul-softmax-matmul) at a config's shapes, with and without a
+    /// gradient, and keep the fastest of each for this adapter: attention on it takes them
+    /// from then on, unless PRISM_ATTENTION says otherwise. The record is
+    /// <cache folder>/attention/<adapter's fingerprint>.json; delete it to go back to Burn's
+    /// ops.
+    Attention(AttentionArgs),
+}
+
+impl TuneCommand {
+    /// Runs the subcommand.
+    pub fn run(self) -> anyhow::Result<()> {
+        match self {
+            Self::Attention(args) => args.run(),
+        }
+    }
+}
+
+/// Arguments of `prism tune attention`.
+#[derive(Args, Debug)]
+pub struct AttentionArgs {
+    /// Config file whose `[model]` gives the shapes (heads, head width, tokens) [default: the
+    /// small config, configs/small.toml, built in].
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    /// Image side in pixels, which sets the tokens [default: the config's]. Tune at the
+    /// resolution you train at: the kernels that keep the scores grow with its square.
+    #[arg(long, value_name = "PIXELS")]
+    res: Option<usize>,
+    /// (source, target) pairs per call.
+    #[arg(long, default_value_t = 1)]
+    batch: usize,
+    /// Precision of the inputs: f32, f16 or bf16.
+    #[arg(long, default_value = "f32")]
+    precision: Precision,
+    /// GPU backend: wgpu or cuda.
+    #[arg(long, default_value = "wgpu")]
+    backend: BackendKind,
+    /// Untimed calls of each kernel before timing (the first compiles it).
+    #[arg(long, default_value_t = 2)]
+    warmup: usize,
+    /// Timed calls of each kernel (the median is kept).
+    #[arg(long, default_value_t = 10)]
+    iters: usize,
+    /// Print the table without recording the choice.
+    #[arg(long)]
+    no_record: bool,
+    /// Time nothing: say which kernels attention takes on this adapter, and why.
+    #[arg(long)]
+    show: bool,
+}
+
+impl AttentionArgs {
+    fn run(self) -> anyhow::Result<()> {
+        let device = self.backend.device()?;
+        let adapter = Adapter::of(&device).with_context(|| {
+            format!(
+                "the {} backend runs on the CPU, where attention is one fused host kernel: \
+                 there is nothing to tune (use --backend wgpu or cuda)",
+                self.backend
+            )
+        })?;
+        if self.show {
+            println!(
+                "attention on {} ({}): {}",
+                adapter.name,
+                self.backend,
+                in_force(&device)
+            );
+            return Ok(());
+        }
+        let shape = self.shape(&device, &adapter)?;
+        println!(
+            "attention on {} ({}): {} pair(s) x {} heads x {} tokens x head width {}, {}",
+            adapter.name,
+            self.backend,
+            shape.batch,
+            shape.heads,
+            shape.tokens,
+            shape.head_dim,
+            shape.precision
+        );
+        let timer = Timer {
+            device,
+            shape: [shape.batch, shape.heads, shape.tokens, shape.head_dim],
+            precision: self.precision,
+            warmup: self.warmup,
+            iters: self.iters.max(1),
+        };
+        let kernels = timer.kernels();
+        println!(
+            "{:<10} {:<8} {:>10} {:>14}",
+            "mode", "kernel", "ms", "kept_for_grad"
+        );
+        let inference = timer.time_all("inference", &kernels.0, false);
+        let training = timer.time_all("training", &kernels.1, true);
+        let choice = Choice::fastest(&inference, &training)?;
+        let attention = choice.attention()?;
+        let record = Record {
+            adapter,
+            backend: self.backend.to_string(),
+            prism: env!("CARGO_PKG_VERSION").into(),
+            shape,
+            inference,
+            training,
+            choice,
+        };
+        if self.no_record {
+            println!("fastest: {attention} (not recorded)");
+            return Ok(());
+        }
+        let path = record.adapter.record_path();
+        record.write(&path)?;
+        println!(
+            "fastest: {attention}; recorded for this adapter in {}",
+            path.display()
+        );
+        if let Some(set) = GpuAttention::from_environment() {
+            println!("(PRISM_ATTENTION is set, and takes precedence: {set})");
+        }
+        Ok(())
+    }
+
+    /// The shapes to time at: the config's heads and head width, the tokens of `--res`, in
+    /// `--precision` (which `device` must compute in).
+    fn shape(&self, device: &Device, adapter: &Adapter) -> anyhow::Result<Shape> {
+        let (config, model) = match &self.config {
+            Some(path) => (path.display().to_string(), load_config(path)?.model),
+            None => {
+                let path = "configs/small.toml";
+                let file = parse_config(prism_train::quickstart::SMALL_CONFIG, Path::new(path));
+                (path.to_string(), file?.model)
+            }
+        };
+        let res = self.res.unwrap_or(model.resolution);
+        anyhow::ensure!(
+            res >= model.patch_size && res.is_multiple_of(model.patch_size),
+            "--res {res} is not a positive multiple of the config's patch size {}",
+            model.patch_size
+        );
+        anyhow::ensure!(self.batch >= 1, "--batch must be at least 1");
+        anyhow::ensure!(
+            self.precision.supported_on(device),
+            "the {} backend does not compute in {} on {}",
+            self.backend,
+            self.precision,
+            adapter.name
+        );
+        let side = res / model.patch_size;
+        Ok(Shape {
+            config,
+            resolution: res,
+            batch: self.batch,
+            heads: model.heads,
+            tokens: 2 * side * side,
+            head_dim: model.width / model.heads,
+            precision: self.precision.to_string(),
+        })
+    }
+}
+
+/// The kernels attention takes on `device` on this thread, and where that choice comes from:
+/// `inference burn, training flash (PRISM_ATTENTION)`.
+pub fn in_force(device: &Device) -> String {
+    let (choice, origin) = GpuAttention::in_force(device);
+    let origin = match origin {
+        ChoiceOrigin::Thread => "set in code".to_string(),
+        ChoiceOrigin::Environment => "PRISM_ATTENTION".to_string(),
+        ChoiceOrigin::Measured => Adapter::of(device).map_or_else(
+            || "measured by prism tune attention".to_string(),
+            |adapter| {
+                format!(
+                    "measured by prism tune attention, {}",
+                    adapter.record_path().display()
+                )
+            },
+        ),
+        ChoiceOrigin::Default => "the default; prism tune attention measures this adapter".into(),
+    };
+    format!("{choice} ({origin})")
+}
+
+/// Times attention on one device at one shape.
+struct Timer {
+    device: Device,
+    shape: [usize; 4],
+    precision: Precision,
+    warmup: usize,
+    iters: usize,
+}
+
+impl Timer {
+    /// The kernels to time without and with a gradient: every one, less the flash kernels
+    /// where they do not take this shape (a head wider than they allow).
+    fn kernels(&self) -> (Vec<AttentionKernel>, Vec<AttentionKernel>) {
+        let [q, k, v] = self.inputs(&self.device);
+        let flash = prism_kernels::device::supported(&q, &k, &v);
+        if !flash {
+            println!("(the flash kernels do not take this shape: not timed)");
+        }
+        let keep = |kernels: &[AttentionKernel]| {
+            kernels
+                .iter()
+                .copied()
+                .filter(|&k| flash || k != AttentionKernel::Flash)
+                .collect()
+        };
+        (
+            keep(&AttentionKernel::ALL),
+            keep(&AttentionKernel::TRAINING),
+        )
+    }
+
+    /// [`Timer::time`] of each kernel, each printed as a row of the table as it is timed.
+    fn time_all(&self, mode: &str, kernels: &[AttentionKernel], tracked: bool) -> Vec<KernelTime> {
+        let mib = |bytes: u64| format!("{:.1} MiB", bytes as f64 / (1024.0 * 1024.0));
+        kernels
+            .iter()
+            .map(|&kernel| {
+                let time = self.time(kernel, tracked);
+                let kept = time.kept_bytes.map_or("-".into(), mib);
+                println!("{mode:<10} {:<8} {:>10.3} {kept:>14}", time.kernel, time.ms);
+                time
+            })
+            .collect()
+    }
+
+    /// Random `q`, `k`, `v` of the shape, in the precision, on `device`.
+    fn inputs(&self, device: &Device) -> [Tensor<4>; 3] {
+        std::array::from_fn(|_| {
+            Tensor::<4>::random(self.shape, Distribution::Normal(0.0, 1.0), device)
+                .cast(self.precision.dtype())
+        })
+    }
+
+    /// The median time of one call through `kernel` (with a gradient when `tracked`: forward
+    /// and backward of `sum(attention * w)`), and with a gradient the bytes its forward pass
+    /// keeps for the backward pass.
+    fn time(&self, kernel: AttentionKernel, tracked: bool) -> KernelTime {
+        let choice = GpuAttention::new(kernel, kernel);
+        let device = if tracked {
+            self.device.clone().autodiff()
+        } else {
+            self.device.clone()
+        };
+        let [q, k, v] = self
+            .inputs(&device)
+            .map(|x| if tracked { x.require_grad() } else { x });
+        let weights = Tensor::<4>::random(self.shape, Distribution::Normal(0.0, 1.0), &device)
+            .cast(self.precision.dtype());
+        let forward = || choice.run(|| prism_kernels::attention(q.clone(), k.clone(), v.clone()));
+        let call = || {
+            let out = forward();
+            let kept = tracked.then(|| {
+                let grads = (out.clone() * weights.clone()).sum().backward();
+                [&q, &k, &v].map(|x| x.grad(&grads))
+            });
+            let _ = device.sync();
+            drop((out, kept));
+        };
+        for _ in 0..self.warmup {
+            call();
+        }
+        let mut times: Vec<f64> = (0..self.iters)
+            .map(|_| {
+                let start = Instant::now();
+                call();
+                start.elapsed().as_secs_f64() * 1e3
+            })
+            .collect();
+        times.sort_by(f64::total_cmp);
+        let kept_bytes = tracked
+            .then(|| {
+                let before = self.bytes_in_use()?;
+                let out = forward();
+                let kept = self.bytes_in_use()?.saturating_sub(before);
+                drop(out);
+                Some(kept)
+            })
+            .flatten();
+        KernelTime {
+            kernel: kernel.name().into(),
+            ms: median(&times),
+            kept_bytes,
+        }
+    }
+
+    /// Bytes the device's pools hold in live allocations once everything queued has run,
+    /// where the backend reports them.
+    fn bytes_in_use(&self) -> Option<u64> {
+        self.device.sync().ok()?;
+        Some(self.device.memory_pool_usage()?.bytes_in_use)
+    }
+}
