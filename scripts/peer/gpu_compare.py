@@ -20,7 +20,12 @@ For a machine with the GPU, its driver and PyTorch, but no Rust toolchain and no
    the teacher's and the student's FPS at 512 px, and the teacher's training step at its own
    resolution, 512 px, one (source, target) pair per step, with its peak memory: the paper's
    model must train at 512 px on one 80 GB card (stored scores alone would take about 116 GB).
-5. Optionally, `prism quickstart --backend wgpu`, timed, with its phase table.
+5. Runs `prism tune attention` at the backbone's training shapes (in the first precision):
+   each attention kernel alone, with and without a gradient, and the memory it keeps for the
+   backward pass; the kernels it finds fastest are what prism would take on this card once
+   tuned (recorded in a cache folder of its own, so the other stages run the default). The dry
+   run tunes on whatever wgpu adapter the machine has (lavapipe).
+6. Optionally, `prism quickstart --backend wgpu`, timed, with its phase table.
 
 It writes the tables to OUT/gpu_compare.md, everything to OUT/gpu_compare.json and the
 commands' output to OUT/log.txt. The stages run one after the other (never two at once: they
@@ -88,12 +93,13 @@ class Plan:
     stage_three: int
     group: int
     paper_res: int         # the paper config's rows' resolution (forward and training)
+    tune_backend: str      # the backend `prism tune attention` runs on (a GPU one)
     quickstart: list       # arguments of `prism quickstart` besides --backend and --out
     budget: float          # default seconds for the whole run
 
 
-GPU = Plan("cuda", "wgpu", 512, 256, 128, 768, 12, 12, 24, 6, 512, [], 450)
-DRY = Plan("cpu", "flex", 64, 32, 32, 64, 2, 2, 4, 3, 64,
+GPU = Plan("cuda", "wgpu", 512, 256, 128, 768, 12, 12, 24, 6, 512, "wgpu", [], 450)
+DRY = Plan("cpu", "flex", 64, 32, 32, 64, 2, 2, 4, 3, 64, "wgpu",
            ["--fast", "--teacher-steps", "2", "--student-steps", "2", "--eval-views", "2"], 900)
 
 
@@ -376,6 +382,26 @@ def measure_paper(run, plan, args, prism, config, env):
     return results
 
 
+def measure_tune(run, plan, args, prism, config, env, precision, work):
+    """`prism tune attention` at the backbone's training shapes in `precision`, recorded in a
+    cache folder of its own: the record it writes (each kernel's ms, the bytes it keeps for
+    the backward pass, the fastest of each), or None when it did not finish."""
+    cache = os.path.join(work, "tune-cache")
+    cmd = [prism, "tune", "attention", "--backend", plan.tune_backend, "--config", config,
+           "--res", str(plan.train_res), "--precision", precision,
+           "--warmup", str(args.warmup), "--iters", str(max(args.iters, 5))]
+
+    def go(left):
+        run_command(cmd, dict(env, PRISM_CACHE_DIR=cache), left, run.log)
+        records = glob.glob(os.path.join(cache, "attention", "*.json"))
+        if len(records) != 1:
+            raise ValueError(f"{len(records)} records in {cache}/attention")
+        with open(records[0]) as f:
+            return dict(json.load(f), command=" ".join(cmd))
+
+    return run.stage(f"prism tune attention {precision}", go)
+
+
 def measure_quickstart(run, plan, prism, env, work):
     """`prism quickstart` on the plan's backend, timed: its wall seconds, its tables and its
     phase timings (OUT/quickstart_phases.json), or None when it did not finish."""
@@ -467,13 +493,30 @@ def paper_table(plan, paper_rows):
             "reservation).\n")
 
 
+def tune_table(record):
+    """Markdown table of `prism tune attention`'s record: each kernel's ms and the memory it
+    keeps for the backward pass, and the choice."""
+    shape = record["shape"]
+    lines = [f"`prism tune attention` on {record['adapter']['name']}: {shape['batch']} pair x "
+             f"{shape['heads']} heads x {shape['tokens']} tokens x head width "
+             f"{shape['head_dim']}, {shape['precision']}.\n",
+             "| mode | kernel | ms | kept for the gradient MiB |", "|---|---|---:|---:|"]
+    for mode in ("inference", "training"):
+        for time in record[mode]:
+            lines.append(f"| {mode} | {PATHS.get(time['kernel'], time['kernel'])} | "
+                         f"{time['ms']:.3f} | {cell(time, 'kept_bytes', MIB, 2)} |")
+    choice = record["choice"]
+    return ("\n".join(lines) + f"\n\nFastest: inference {choice['inference']}, training "
+            f"{choice['training']}.\n")
+
+
 def json_rows(results):
     """{(model, res): row} maps as lists, for the JSON file."""
     return {name: [dict(row, model=k[0], res=k[1]) for k, row in rows.items()]
             for name, rows in results.items()}
 
 
-def report(run, plan, context, torch_rows, prism_rows, paper_rows, quickstart):
+def report(run, plan, context, torch_rows, prism_rows, paper_rows, tune, quickstart):
     """Prints the Markdown report and writes it and the JSON into the output folder."""
     parts = [f"# prism and PyTorch on {context['gpu'] or plan.device} ({context['date']})\n",
              f"Command: `{context['command']}`. Backbone: width {plan.width}, {plan.heads} "
@@ -482,6 +525,8 @@ def report(run, plan, context, torch_rows, prism_rows, paper_rows, quickstart):
              torch_table(plan, torch_rows), prism_table(plan, torch_rows, prism_rows)]
     if paper_rows is not None:
         parts.append(paper_table(plan, paper_rows))
+    if tune:
+        parts.append(tune_table(tune))
     if quickstart:
         parts.append(f"`{quickstart['command']}`: {quickstart['wall_seconds']:.0f} s\n\n"
                      f"```\n{quickstart['tables'].strip()}\n```\n")
@@ -493,7 +538,7 @@ def report(run, plan, context, torch_rows, prism_rows, paper_rows, quickstart):
     with open(os.path.join(run.out, "gpu_compare.md"), "w") as f:
         f.write(markdown)
     data = dict(context, plan=dataclasses.asdict(plan), torch=json_rows(torch_rows),
-                prism=json_rows(prism_rows), paper=json_rows(paper_rows or {}),
+                prism=json_rows(prism_rows), paper=json_rows(paper_rows or {}), tune=tune,
                 quickstart=quickstart, stages=run.stages)
     with open(os.path.join(run.out, "gpu_compare.json"), "w") as f:
         json.dump(data, f, indent=1)
@@ -570,11 +615,12 @@ def main():
         if args.paper:
             paper = paper_config(plan, os.path.join(work, "paper.toml"))
             paper_rows = measure_paper(run, plan, args, prism, paper, env)
+        tune = measure_tune(run, plan, args, prism, config, env, first, work)
         for precision in others:
             prism_rows.update(measure_prism(run, plan, args, prism, config, env, precision))
         torch_rows.update(measure_torch(run, plan, args, shapes, TORCH_DTYPES[1:]))
         quickstart = measure_quickstart(run, plan, prism, env, work) if args.quickstart else None
-        report(run, plan, context, torch_rows, prism_rows, paper_rows, quickstart)
+        report(run, plan, context, torch_rows, prism_rows, paper_rows, tune, quickstart)
 
 
 if __name__ == "__main__":
