@@ -356,7 +356,7 @@ impl TableArgs {
             self.backend,
             device_name(&device),
             self.precision,
-            attention_in_force(&device)
+            attention_in_force(&device, self.precision)
         );
         print_header();
         let mut rows = Vec::new();
@@ -442,13 +442,14 @@ fn device_name(device: &burn::tensor::Device) -> String {
     Adapter::of(device).map_or_else(|| format!("{device:?}"), |adapter| adapter.name)
 }
 
-/// On a GPU backend, `, attention` and the kernels in force with where they come from; empty
+/// On a GPU backend, `, attention` and the kernels in force for blocks in `precision` with where
+/// they come from; empty
 /// on the CPU backends, where f32 attention is the fused host kernel.
-fn attention_in_force(device: &burn::tensor::Device) -> String {
+fn attention_in_force(device: &burn::tensor::Device, precision: Precision) -> String {
     if prism_kernels::is_host(device) {
         return String::new();
     }
-    format!(", attention {}", super::tune::in_force(device))
+    format!(", attention {}", super::tune::in_force(device, precision))
 }
 
 /// Arguments of `prism bench precision`.

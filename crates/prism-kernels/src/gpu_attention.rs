@@ -7,14 +7,14 @@
 //!    kernels in one process this way);
 //! 2. the `PRISM_ATTENTION` environment variable, read once per process (so one binary can
 //!    time each: `PRISM_ATTENTION=flash prism bench`);
-//! 3. the one measured for the device's adapter, when a program registered where measurements
-//!    are kept ([`GpuAttention::measured_by`]; the `prism` binary registers the files of
-//!    `prism tune attention`);
+//! 3. the one measured for the device's adapter in the inputs' dtype, when a program registered
+//!    where measurements are kept ([`GpuAttention::measured_by`]; the `prism` binary registers
+//!    the files of `prism tune attention`);
 //! 4. [`GpuAttention::BURN`], Burn's ops only.
 
 use std::sync::{Mutex, OnceLock};
 
-use burn::tensor::Device;
+use burn::tensor::{DType, Device};
 
 /// One way to compute softmax attention on a GPU backend.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -83,14 +83,16 @@ pub enum ChoiceOrigin {
     Thread,
     /// The `PRISM_ATTENTION` environment variable.
     Environment,
-    /// The measurement registered with [`GpuAttention::measured_by`] for the device's adapter.
+    /// The measurement registered with [`GpuAttention::measured_by`] for the device's adapter
+    /// and the inputs' dtype.
     Measured,
     /// None of those: [`GpuAttention::BURN`].
     Default,
 }
 
-/// Finds the choice measured for a device's adapter, `None` where none was measured.
-pub type MeasuredChoice = fn(&Device) -> Option<GpuAttention>;
+/// Finds the choice measured for a device's adapter with inputs of a dtype, `None` where none
+/// was measured.
+pub type MeasuredChoice = fn(&Device, DType) -> Option<GpuAttention>;
 
 thread_local! {
     /// The choice [`GpuAttention::run`] put in force on this thread, if any.
@@ -102,9 +104,12 @@ thread_local! {
 /// Where measured choices are found, once registered.
 static MEASURED_BY: OnceLock<MeasuredChoice> = OnceLock::new();
 
-/// The measured choice of each device asked about so far (the lookup reads a file: once per
-/// device and process).
-static MEASURED: Mutex<Vec<(Device, Option<GpuAttention>)>> = Mutex::new(Vec::new());
+/// The measured choice of each device and dtype asked about so far (the lookup reads a file:
+/// once per device, dtype and process).
+static MEASURED: Mutex<Vec<(MeasuredKey, Option<GpuAttention>)>> = Mutex::new(Vec::new());
+
+/// What a measurement is kept for: a device (without autodiff) and its inputs' dtype.
+type MeasuredKey = (Device, DType);
 
 impl GpuAttention {
     /// `burn` (the default): Burn's fused attention op for inference, matmul-softmax-matmul
@@ -167,40 +172,40 @@ impl GpuAttention {
         MEASURED_BY.set(lookup).is_ok()
     }
 
-    /// The choice measured for `device`'s adapter, asked of the registered lookup once per
-    /// device (with or without autodiff, the same device).
-    fn measured(device: &Device) -> Option<Self> {
+    /// The choice measured for `device`'s adapter with `dtype` inputs, asked of the registered
+    /// lookup once per device and dtype (with or without autodiff, the same device).
+    fn measured(device: &Device, dtype: DType) -> Option<Self> {
         let lookup = MEASURED_BY.get()?;
-        let device = device.clone().without_autodiff();
+        let key = (device.clone().without_autodiff(), dtype);
         let mut known = MEASURED
             .lock()
             .unwrap_or_else(|poisoned| poisoned.into_inner());
-        if let Some((_, choice)) = known.iter().find(|(d, _)| *d == device) {
+        if let Some((_, choice)) = known.iter().find(|(k, _)| *k == key) {
             return *choice;
         }
-        let choice = lookup(&device);
-        known.push((device, choice));
+        let choice = lookup(&key.0, dtype);
+        known.push((key, choice));
         choice
     }
 
-    /// The choice in force on this thread for attention on `device`, and where it came from
-    /// (see the module's docs for the order).
-    pub fn in_force(device: &Device) -> (Self, ChoiceOrigin) {
+    /// The choice in force on this thread for attention on `device` with `dtype` inputs, and
+    /// where it came from (see the module's docs for the order).
+    pub fn in_force(device: &Device, dtype: DType) -> (Self, ChoiceOrigin) {
         if let Some(choice) = ON_THIS_THREAD.get() {
             (choice, ChoiceOrigin::Thread)
         } else if let Some(choice) = Self::from_environment() {
             (choice, ChoiceOrigin::Environment)
-        } else if let Some(choice) = Self::measured(device) {
+        } else if let Some(choice) = Self::measured(device, dtype) {
             (choice, ChoiceOrigin::Measured)
         } else {
             (Self::BURN, ChoiceOrigin::Default)
         }
     }
 
-    /// The choice in force on this thread for attention on `device` ([`in_force`](Self::in_force)
-    /// without its origin).
-    pub fn current(device: &Device) -> Self {
-        Self::in_force(device).0
+    /// The choice in force on this thread for attention on `device` with `dtype` inputs
+    /// ([`in_force`](Self::in_force) without its origin).
+    pub fn current(device: &Device, dtype: DType) -> Self {
+        Self::in_force(device, dtype).0
     }
 
     /// Runs `f` with attention on this thread taking this choice, whatever `PRISM_ATTENTION`
@@ -276,60 +281,64 @@ mod tests {
     #[test]
     fn a_thread_choice_comes_first_and_is_put_back() {
         let device = Device::flex();
-        let before = GpuAttention::in_force(&device);
+        let before = GpuAttention::in_force(&device, DType::F32);
         assert_ne!(before.1, ChoiceOrigin::Thread);
         let inside = GpuAttention::UNFUSED.run(|| {
-            let nested = GpuAttention::FLASH.run(|| GpuAttention::in_force(&device));
-            (nested, GpuAttention::in_force(&device))
+            let nested = GpuAttention::FLASH.run(|| GpuAttention::in_force(&device, DType::F32));
+            (nested, GpuAttention::in_force(&device, DType::F32))
         });
         assert_eq!(inside.0, (GpuAttention::FLASH, ChoiceOrigin::Thread));
         assert_eq!(inside.1, (GpuAttention::UNFUSED, ChoiceOrigin::Thread));
-        assert_eq!(GpuAttention::in_force(&device), before);
+        assert_eq!(GpuAttention::in_force(&device, DType::F32), before);
         let panicked = std::panic::catch_unwind(|| GpuAttention::FLASH.run(|| panic!("inside")));
         assert!(panicked.is_err());
-        assert_eq!(GpuAttention::in_force(&device), before);
+        assert_eq!(GpuAttention::in_force(&device, DType::F32), before);
     }
 
     /// How often the registered lookup was asked.
     static LOOKUPS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
 
-    /// A lookup that measured `auto` for ndarray devices (where it runs what the default runs:
-    /// no flash kernels on a CPU, and f32 attention takes the host kernel) and nothing else.
-    fn ndarray_measured_auto(device: &Device) -> Option<GpuAttention> {
+    /// A lookup that measured `auto` for ndarray devices in f32 (where it runs what the default
+    /// runs: no flash kernels on a CPU, and f32 attention takes the host kernel) and nothing
+    /// else.
+    fn ndarray_measured_auto(device: &Device, dtype: DType) -> Option<GpuAttention> {
         LOOKUPS.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
         #[allow(deprecated)]
         let ndarray = Device::ndarray();
-        (*device == ndarray).then_some(GpuAttention::AUTO)
+        (*device == ndarray && dtype == DType::F32).then_some(GpuAttention::AUTO)
     }
 
     #[test]
-    fn a_measured_choice_is_asked_once_per_device_and_yields_to_the_others() {
+    fn a_measured_choice_is_asked_once_per_device_and_dtype_and_yields_to_the_others() {
         if GpuAttention::from_environment().is_some() {
             eprintln!("skipped: PRISM_ATTENTION is set");
             return;
         }
         assert!(GpuAttention::measured_by(ndarray_measured_auto));
         assert!(
-            !GpuAttention::measured_by(|_| None),
+            !GpuAttention::measured_by(|_, _| None),
             "a second registration"
         );
         #[allow(deprecated)]
         let ndarray = Device::ndarray();
         let measured = (GpuAttention::AUTO, ChoiceOrigin::Measured);
-        assert_eq!(GpuAttention::in_force(&ndarray), measured);
+        assert_eq!(GpuAttention::in_force(&ndarray, DType::F32), measured);
         let asked = LOOKUPS.load(std::sync::atomic::Ordering::SeqCst);
-        assert_eq!(
-            GpuAttention::in_force(&ndarray.clone().autodiff()),
-            measured
-        );
+        let tracked = ndarray.clone().autodiff();
+        assert_eq!(GpuAttention::in_force(&tracked, DType::F32), measured);
         assert_eq!(
             LOOKUPS.load(std::sync::atomic::Ordering::SeqCst),
             asked,
             "asked again"
         );
-        let thread = GpuAttention::FLASH.run(|| GpuAttention::in_force(&ndarray));
+        let thread = GpuAttention::FLASH.run(|| GpuAttention::in_force(&ndarray, DType::F32));
         assert_eq!(thread, (GpuAttention::FLASH, ChoiceOrigin::Thread));
-        let flex = GpuAttention::in_force(&Device::flex());
-        assert_eq!(flex, (GpuAttention::BURN, ChoiceOrigin::Default));
+        let default = (GpuAttention::BURN, ChoiceOrigin::Default);
+        assert_eq!(
+            GpuAttention::in_force(&ndarray, DType::F16),
+            default,
+            "another dtype"
+        );
+        assert_eq!(GpuAttention::in_force(&Device::flex(), DType::F32), default);
     }
 }

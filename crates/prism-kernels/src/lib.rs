@@ -382,7 +382,7 @@ fn attention_in(q: Tensor<4>, k: Tensor<4>, v: Tensor<4>, bf16: bool) -> Tensor<
         ));
     }
     let tracked = q.is_tracked() || k.is_tracked() || v.is_tracked();
-    let kernel = GpuAttention::current(&q.device()).kernel(tracked);
+    let kernel = GpuAttention::current(&q.device(), q.dtype()).kernel(tracked);
     #[cfg(any(feature = "wgpu", feature = "cuda"))]
     if kernel == AttentionKernel::Flash && device::supported(&q, &k, &v) {
         return device::flash(q, k, v);

@@ -55,9 +55,10 @@ pub struct AttentionArgs {
     /// (source, target) pairs per call.
     #[arg(long, default_value_t = 1)]
     batch: usize,
-    /// Precision of the inputs: f32, f16 or bf16.
-    #[arg(long, default_value = "f32")]
-    precision: Precision,
+    /// Precisions of the inputs to tune, each recorded apart (comma-separated: f32, f16,
+    /// bf16) [default: those of the three the adapter computes in].
+    #[arg(long, value_delimiter = ',')]
+    precision: Vec<Precision>,
     /// GPU backend: wgpu or cuda.
     #[arg(long, default_value = "wgpu")]
     backend: BackendKind,
@@ -85,16 +86,43 @@ impl AttentionArgs {
                 self.backend
             )
         })?;
+        let precisions = self.precisions(&device, &adapter)?;
         if self.show {
-            println!(
-                "attention on {} ({}): {}",
-                adapter.name,
-                self.backend,
-                in_force(&device)
-            );
+            for precision in precisions {
+                let choice = in_force(&device, precision);
+                let (name, backend) = (&adapter.name, self.backend);
+                println!("attention on {name} ({backend}) in {precision}: {choice}");
+            }
             return Ok(());
         }
-        let shape = self.shape(&device, &adapter)?;
+        for precision in precisions {
+            self.tune(&device, &adapter, precision)?;
+        }
+        Ok(())
+    }
+
+    /// `--precision`'s list, each checked against the device, or the precisions of f32, f16
+    /// and bf16 the device computes in.
+    fn precisions(&self, device: &Device, adapter: &Adapter) -> anyhow::Result<Vec<Precision>> {
+        if self.precision.is_empty() {
+            let all = [Precision::F32, Precision::F16, Precision::Bf16];
+            return Ok(all.into_iter().filter(|p| p.supported_on(device)).collect());
+        }
+        for precision in &self.precision {
+            anyhow::ensure!(
+                precision.supported_on(device),
+                "the {} backend does not compute in {precision} on {}",
+                self.backend,
+                adapter.name
+            );
+        }
+        Ok(self.precision.clone())
+    }
+
+    /// Times each kernel with `precision` inputs, prints the table and, unless `--no-record`,
+    /// records the fastest of each for the adapter.
+    fn tune(&self, device: &Device, adapter: &Adapter, precision: Precision) -> anyhow::Result<()> {
+        let shape = self.shape(precision)?;
         println!(
             "attention on {} ({}): {} pair(s) x {} heads x {} tokens x head width {}, {}",
             adapter.name,
@@ -106,9 +134,9 @@ impl AttentionArgs {
             shape.precision
         );
         let timer = Timer {
-            device,
+            device: device.clone(),
             shape: [shape.batch, shape.heads, shape.tokens, shape.head_dim],
-            precision: self.precision,
+            precision,
             warmup: self.warmup,
             iters: self.iters.max(1),
         };
@@ -122,7 +150,7 @@ impl AttentionArgs {
         let choice = Choice::fastest(&inference, &training)?;
         let attention = choice.attention()?;
         let record = Record {
-            adapter,
+            adapter: adapter.clone(),
             backend: self.backend.to_string(),
             prism: env!("CARGO_PKG_VERSION").into(),
             shape,
@@ -134,7 +162,7 @@ impl AttentionArgs {
             println!("fastest: {attention} (not recorded)");
             return Ok(());
         }
-        let path = record.adapter.record_path();
+        let path = adapter.record_path(precision);
         record.write(&path)?;
         println!(
             "fastest: {attention}; recorded for this adapter in {}",
@@ -147,8 +175,8 @@ impl AttentionArgs {
     }
 
     /// The shapes to time at: the config's heads and head width, the tokens of `--res`, in
-    /// `--precision` (which `device` must compute in).
-    fn shape(&self, device: &Device, adapter: &Adapter) -> anyhow::Result<Shape> {
+    /// `precision`.
+    fn shape(&self, precision: Precision) -> anyhow::Result<Shape> {
         let (config, model) = match &self.config {
             Some(path) => (path.display().to_string(), load_config(path)?.model),
             None => {
@@ -164,13 +192,6 @@ impl AttentionArgs {
             model.patch_size
         );
         anyhow::ensure!(self.batch >= 1, "--batch must be at least 1");
-        anyhow::ensure!(
-            self.precision.supported_on(device),
-            "the {} backend does not compute in {} on {}",
-            self.backend,
-            self.precision,
-            adapter.name
-        );
         let side = res / model.patch_size;
         Ok(Shape {
             config,
@@ -179,15 +200,15 @@ impl AttentionArgs {
             heads: model.heads,
             tokens: 2 * side * side,
             head_dim: model.width / model.heads,
-            precision: self.precision.to_string(),
+            precision: precision.to_string(),
         })
     }
 }
 
-/// The kernels attention takes on `device` on this thread, and where that choice comes from:
-/// `inference burn, training flash (PRISM_ATTENTION)`.
-pub fn in_force(device: &Device) -> String {
-    let (choice, origin) = GpuAttention::in_force(device);
+/// The kernels attention with `precision` inputs takes on `device` on this thread, and where
+/// that choice comes from: `inference burn, training flash (PRISM_ATTENTION)`.
+pub fn in_force(device: &Device, precision: Precision) -> String {
+    let (choice, origin) = GpuAttention::in_force(device, precision.dtype().into());
     let origin = match origin {
         ChoiceOrigin::Thread => "set in code".to_string(),
         ChoiceOrigin::Environment => "PRISM_ATTENTION".to_string(),
@@ -196,7 +217,7 @@ pub fn in_force(device: &Device) -> String {
             |adapter| {
                 format!(
                     "measured by prism tune attention, {}",
-                    adapter.record_path().display()
+                    adapter.record_path(precision).display()
                 )
             },
         ),

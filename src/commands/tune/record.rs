@@ -5,15 +5,16 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use burn::tensor::Device;
+use burn::tensor::{DType, Device};
 use prism_kernels::{AttentionKernel, GpuAttention};
+use prism_model::Precision;
 use serde::{Deserialize, Serialize};
 
 /// The folder under the cache folder that holds one record per adapter.
 const FOLDER: &str = "attention";
 
 /// Who a GPU device is: its adapter's name (as the driver gives it) and the fingerprint its
-/// compiled kernels are keyed to (vendor and device ids), which names its record.
+/// compiled kernels are keyed to (vendor and device ids), which names its records.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Adapter {
     /// `NVIDIA H200`, `llvmpipe (LLVM 15.0.7, 256 bits)`.
@@ -39,9 +40,10 @@ impl Adapter {
         }
     }
 
-    /// Where this adapter's record lies: `<cache folder>/attention/<fingerprint>.json`, the
-    /// fingerprint's characters outside `[A-Za-z0-9_-]` written as `_`.
-    pub fn record_path(&self) -> PathBuf {
+    /// Where this adapter's record for inputs in `precision` lies:
+    /// `<cache folder>/attention/<fingerprint>-<precision>.json`, the fingerprint's characters
+    /// outside `[A-Za-z0-9_-]` written as `_`.
+    pub fn record_path(&self, precision: Precision) -> PathBuf {
         let file: String = self
             .fingerprint
             .chars()
@@ -55,7 +57,7 @@ impl Adapter {
             .collect();
         prism_synth::cache_dir()
             .join(FOLDER)
-            .join(format!("{file}.json"))
+            .join(format!("{file}-{precision}.json"))
     }
 }
 
@@ -184,12 +186,19 @@ impl Record {
     }
 }
 
-/// The choice recorded for `device`'s adapter, `None` where none was recorded. A record that
+/// The choice recorded for `device`'s adapter with `dtype` inputs, `None` where none was
+/// recorded (or the dtype is none of f32, f16, bf16). A record that
 /// cannot be read, or names no kernel, is reported on stderr and ignored; a record in force
 /// is named on stderr, once per device, so a run's log says which attention it ran.
-fn recorded_choice(device: &Device) -> Option<GpuAttention> {
+fn recorded_choice(device: &Device, dtype: DType) -> Option<GpuAttention> {
+    let precision = match dtype {
+        DType::F32 => Precision::F32,
+        DType::F16 => Precision::F16,
+        DType::BF16 => Precision::Bf16,
+        _ => return None,
+    };
     let adapter = Adapter::of(device)?;
-    let path = adapter.record_path();
+    let path = adapter.record_path(precision);
     if !path.exists() {
         return None;
     }
@@ -202,7 +211,8 @@ fn recorded_choice(device: &Device) -> Option<GpuAttention> {
     match choice {
         Ok(choice) => {
             eprintln!(
-                "prism: attention on {}: {choice} (measured by `prism tune attention`, {})",
+                "prism: attention on {} in {precision}: {choice} (measured by `prism tune \
+                 attention`, {})",
                 adapter.name,
                 path.display()
             );
@@ -260,8 +270,8 @@ mod tests {
             name: "card".into(),
             fingerprint: "spirv_4318/../8963".into(),
         };
-        let path = adapter.record_path();
-        assert_eq!(path.file_name().unwrap(), "spirv_4318____8963.json");
+        let path = adapter.record_path(Precision::Bf16);
+        assert_eq!(path.file_name().unwrap(), "spirv_4318____8963-bf16.json");
         assert_eq!(path.parent().unwrap().file_name().unwrap(), FOLDER);
     }
 }

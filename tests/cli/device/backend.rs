@@ -148,7 +148,7 @@ fn tiny_forward_on_wgpu_matches_flex_through_either_attention() {
         return;
     };
     assert_eq!(
-        GpuAttention::current(&wgpu),
+        GpuAttention::current(&wgpu, burn::tensor::DType::F32),
         GpuAttention::BURN,
         "the default"
     );

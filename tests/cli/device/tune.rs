@@ -1,6 +1,7 @@
 //! `prism tune attention` on the machine's adapter (lavapipe in CI): it times each kernel at the
-//! tiny config's shapes, records the fastest for the adapter, and that record is what attention
-//! on the adapter then takes, below `PRISM_ATTENTION` and above the default.
+//! tiny config's shapes, records the fastest for the adapter and the inputs' precision, and that
+//! record is what attention in that precision on the adapter then takes, below
+//! `PRISM_ATTENTION` and above the default.
 #![cfg(feature = "wgpu")]
 
 use std::path::Path;
@@ -55,14 +56,21 @@ fn tuning_attention_records_the_fastest_kernels_and_puts_them_in_force() {
     let dir = common::scratch("tune_attention");
     let cache = dir.join("cache");
     let show = || stdout(&success(tune(&cache, &["--show"])));
+    const DEFAULT: &str = "inference burn, training unfused (the default";
     let before = show();
-    assert!(
-        before.contains("inference burn, training unfused (the default"),
-        "{before}"
-    );
+    assert!(before.contains(&format!("in f32: {DEFAULT}")), "{before}");
 
     let config = prism_train::configs_dir().join("tiny.toml");
-    let args = ["--config", s(&config), "--res", "32", "--iters", "2"];
+    let args = [
+        "--config",
+        s(&config),
+        "--res",
+        "32",
+        "--iters",
+        "2",
+        "--precision",
+        "f32",
+    ];
     let out = stdout(&success(tune(&cache, &args)));
     let records: Vec<_> = std::fs::read_dir(cache.join("attention"))
         .expect("the record's folder")
@@ -76,10 +84,16 @@ fn tuning_attention_records_the_fastest_kernels_and_puts_them_in_force() {
         out.contains(&format!("attention on {adapter} (wgpu)")),
         "{out}"
     );
+    let fingerprint = record["adapter"]["fingerprint"].as_str().unwrap();
+    assert!(
+        path.ends_with(format!("{fingerprint}-f32.json")),
+        "{path:?}"
+    );
     // The tiny config at 32 px: 4 heads of width 16, a source's and a target's 4 x 4 patches.
     let shape = &record["shape"];
     let dims = ["batch", "heads", "tokens", "head_dim"].map(|k| shape[k].as_u64().unwrap());
     assert_eq!(dims, [1, 4, 32, 16], "{shape}");
+    assert_eq!(shape["precision"], "f32");
     assert_eq!(kernels(&record["inference"]), ["burn", "flash", "unfused"]);
     assert_eq!(kernels(&record["training"]), ["flash", "unfused"]);
     for time in record["inference"].as_array().unwrap() {
@@ -91,8 +105,9 @@ fn tuning_attention_records_the_fastest_kernels_and_puts_them_in_force() {
     let kept = |i: usize| record["training"][i]["kept_bytes"].as_u64().unwrap();
     let (flash, unfused) = (kept(0), kept(1));
     assert!(flash >= 4 * 32 * 16 * 4, "flash keeps {flash} bytes");
+    let scores = 4 * 32 * 32 * 4;
     assert!(
-        unfused >= flash + 4 * 32 * 32 * 4,
+        unfused >= flash + scores,
         "unfused keeps {unfused}, flash {flash}"
     );
     let choice = &record["choice"];
@@ -102,32 +117,28 @@ fn tuning_attention_records_the_fastest_kernels_and_puts_them_in_force() {
     let chosen = format!("inference {inference}, training {training}");
     assert!(out.contains(&format!("fastest: {chosen}")), "{out}");
 
-    // The record is in force on this adapter, below PRISM_ATTENTION.
+    // The record is in force on this adapter for f32 inputs, below PRISM_ATTENTION; another
+    // precision the adapter has (f16 on lavapipe) keeps the default.
     let after = show();
     let measured = format!(
-        "{chosen} (measured by prism tune attention, {}",
-        path.display()
+        "in f32: {chosen} (measured by prism tune attention, {}",
+        s(path)
     );
     assert!(after.contains(&measured), "{after}");
+    for line in after.lines().filter(|line| !line.contains(" in f32: ")) {
+        assert!(line.contains(DEFAULT), "{after}");
+    }
     let mut flash_env = tune(&cache, &["--show"]);
     flash_env.env("PRISM_ATTENTION", "flash");
     let set = stdout(&success(flash_env));
-    assert!(
-        set.contains("inference flash, training flash (PRISM_ATTENTION)"),
-        "{set}"
-    );
+    let flash_set = "in f32: inference flash, training flash (PRISM_ATTENTION)";
+    assert!(set.contains(flash_set), "{set}");
 
     // A damaged record is named on stderr and ignored.
     std::fs::write(path, "{").unwrap();
     let damaged = success(tune(&cache, &["--show"]));
-    assert!(
-        stdout(&damaged).contains("(the default"),
-        "{}",
-        stdout(&damaged)
-    );
+    let shown = stdout(&damaged);
+    assert!(shown.contains(&format!("in f32: {DEFAULT}")), "{shown}");
     let err = stderr(&damaged);
-    assert!(
-        err.contains(&format!("{}: not a record", path.display())),
-        "{err}"
-    );
+    assert!(err.contains(&format!("{}: not a record", s(path))), "{err}");
 }
