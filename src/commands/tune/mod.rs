@@ -2,9 +2,9 @@
 //!
 //! `prism tune attention` times softmax attention through each kernel the GPU backends have
 //! (Burn's attention op, prism's flash kernels, prism's matmul-softmax-matmul) at a config's
-//! shapes, with and without a gradient, and records the fastest of each for the adapter
-//! ([`record`]). From then on, attention on that adapter takes them wherever `PRISM_ATTENTION`
-//! does not say otherwise.
+//! shapes, with and without a gradient, and records the fastest of each for the adapter and the
+//! inputs' precision ([`record`]). From then on, attention in that precision on that adapter
+//! takes them wherever `PRISM_ATTENTION` does not say otherwise.
 
 pub mod record;
 
@@ -25,10 +25,10 @@ use record::{Adapter, Choice, KernelTime, Record, Shape};
 pub enum TuneCommand {
     /// Time softmax attention through each GPU kernel (Burn's attention op, prism's flash
     /// kernels, prism's matmul-softmax-matmul) at a config's shapes, with and without a
-    /// gradient, and keep the fastest of each for this adapter: attention on it takes them
-    /// from then on, unless PRISM_ATTENTION says otherwise. The record is
-    /// <cache folder>/attention/<adapter's fingerprint>.json; delete it to go back to Burn's
-    /// ops.
+    /// gradient, and keep the fastest of each for this adapter and precision: attention on it
+    /// takes them from then on, unless PRISM_ATTENTION says otherwise. Each record is
+    /// <cache folder>/attention/<adapter's fingerprint>-<precision>.json; delete it to go back
+    /// to Burn's ops.
     Attention(AttentionArgs),
 }
 
@@ -145,8 +145,8 @@ impl AttentionArgs {
             "{:<10} {:<8} {:>10} {:>14}",
             "mode", "kernel", "ms", "kept_for_grad"
         );
-        let inference = timer.time_all("inference", &kernels.0, false);
-        let training = timer.time_all("training", &kernels.1, true);
+        let inference = timer.time_all("inference", &kernels.0, false)?;
+        let training = timer.time_all("training", &kernels.1, true)?;
         let choice = Choice::fastest(&inference, &training)?;
         let attention = choice.attention()?;
         let record = Record {
@@ -258,15 +258,23 @@ impl Timer {
     }
 
     /// [`Timer::time`] of each kernel, each printed as a row of the table as it is timed.
-    fn time_all(&self, mode: &str, kernels: &[AttentionKernel], tracked: bool) -> Vec<KernelTime> {
+    ///
+    /// # Errors
+    /// A device that stopped running the kernels.
+    fn time_all(
+        &self,
+        mode: &str,
+        kernels: &[AttentionKernel],
+        tracked: bool,
+    ) -> anyhow::Result<Vec<KernelTime>> {
         let mib = |bytes: u64| format!("{:.1} MiB", bytes as f64 / (1024.0 * 1024.0));
         kernels
             .iter()
             .map(|&kernel| {
-                let time = self.time(kernel, tracked);
+                let time = self.time(kernel, tracked)?;
                 let kept = time.kept_bytes.map_or("-".into(), mib);
                 println!("{mode:<10} {:<8} {:>10.3} {kept:>14}", time.kernel, time.ms);
-                time
+                Ok(time)
             })
             .collect()
     }
@@ -282,7 +290,10 @@ impl Timer {
     /// The median time of one call through `kernel` (with a gradient when `tracked`: forward
     /// and backward of `sum(attention * w)`), and with a gradient the bytes its forward pass
     /// keeps for the backward pass.
-    fn time(&self, kernel: AttentionKernel, tracked: bool) -> KernelTime {
+    ///
+    /// # Errors
+    /// A device that stopped running the kernels.
+    fn time(&self, kernel: AttentionKernel, tracked: bool) -> anyhow::Result<KernelTime> {
         let choice = GpuAttention::new(kernel, kernel);
         let device = if tracked {
             self.device.clone().autodiff()
@@ -301,40 +312,59 @@ impl Timer {
                 let grads = (out.clone() * weights.clone()).sum().backward();
                 [&q, &k, &v].map(|x| x.grad(&grads))
             });
-            let _ = device.sync();
+            let synced = self.sync();
             drop((out, kept));
+            synced
         };
         for _ in 0..self.warmup {
-            call();
+            call()?;
         }
         let mut times: Vec<f64> = (0..self.iters)
             .map(|_| {
                 let start = Instant::now();
-                call();
-                start.elapsed().as_secs_f64() * 1e3
+                call()?;
+                Ok(start.elapsed().as_secs_f64() * 1e3)
             })
-            .collect();
+            .collect::<anyhow::Result<_>>()?;
         times.sort_by(f64::total_cmp);
-        let kept_bytes = tracked
-            .then(|| {
-                let before = self.bytes_in_use()?;
-                let out = forward();
-                let kept = self.bytes_in_use()?.saturating_sub(before);
-                drop(out);
-                Some(kept)
-            })
-            .flatten();
-        KernelTime {
+        let kept_bytes = if tracked {
+            let before = self.bytes_in_use()?;
+            let out = forward();
+            let after = self.bytes_in_use()?;
+            drop(out);
+            before
+                .zip(after)
+                .map(|(before, after)| after.saturating_sub(before))
+        } else {
+            None
+        };
+        Ok(KernelTime {
             kernel: kernel.name().into(),
             ms: median(&times),
             kept_bytes,
-        }
+        })
+    }
+
+    /// Waits for everything queued on the device.
+    ///
+    /// # Errors
+    /// A device that stopped running the kernels.
+    fn sync(&self) -> anyhow::Result<()> {
+        self.device
+            .sync()
+            .map_err(|err| anyhow::anyhow!("the device stopped: {err:?}"))
     }
 
     /// Bytes the device's pools hold in live allocations once everything queued has run,
     /// where the backend reports them.
-    fn bytes_in_use(&self) -> Option<u64> {
-        self.device.sync().ok()?;
-        Some(self.device.memory_pool_usage()?.bytes_in_use)
+    ///
+    /// # Errors
+    /// A device that stopped running the kernels.
+    fn bytes_in_use(&self) -> anyhow::Result<Option<u64>> {
+        self.sync()?;
+        Ok(self
+            .device
+            .memory_pool_usage()
+            .map(|usage| usage.bytes_in_use))
     }
 }
