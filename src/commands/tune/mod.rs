@@ -1,7 +1,8 @@
 //! `prism tune`: measure, on this machine's GPU, what is fastest, and keep the choice.
 //!
-//! `prism tune attention` times softmax attention through each kernel the GPU backends have
-//! (Burn's attention op, prism's flash kernels, prism's matmul-softmax-matmul) at a config's
+//! `prism tune attention` times a block's softmax attention (the model's call: heads split from
+//! the joint projection, QK-norm, attention, heads merged) through each kernel the GPU backends
+//! have (Burn's attention op, prism's flash kernels, prism's matmul-softmax-matmul) at a config's
 //! shapes, with and without a gradient, and records the fastest of each for the adapter and the
 //! inputs' precision ([`record`]). From then on, attention in that precision on that adapter
 //! takes them wherever `PRISM_ATTENTION` does not say otherwise.
@@ -15,7 +16,7 @@ use anyhow::Context;
 use burn::tensor::{Device, Distribution, Tensor};
 use clap::{Args, Subcommand};
 use prism_core::BackendKind;
-use prism_kernels::{AttentionKernel, ChoiceOrigin, GpuAttention};
+use prism_kernels::{AttentionKernel, ChoiceOrigin, GpuAttention, Mixing};
 use prism_model::{Precision, load_config, median, parse_config};
 
 use record::{Adapter, Choice, KernelTime, Record, Shape};
@@ -23,8 +24,8 @@ use record::{Adapter, Choice, KernelTime, Record, Shape};
 /// What to tune.
 #[derive(Subcommand, Debug)]
 pub enum TuneCommand {
-    /// Time softmax attention through each GPU kernel (Burn's attention op, prism's flash
-    /// kernels, prism's matmul-softmax-matmul) at a config's shapes, with and without a
+    /// Time a block's softmax attention through each GPU kernel (Burn's attention op, prism's
+    /// flash kernels, prism's matmul-softmax-matmul) at a config's shapes, with and without a
     /// gradient, and keep the fastest of each for this adapter and precision: attention on it
     /// takes them from then on, unless PRISM_ATTENTION says otherwise. Each record is
     /// <cache folder>/attention/<adapter's fingerprint>-<precision>.json; delete it to go back
@@ -122,7 +123,7 @@ impl AttentionArgs {
     /// Times each kernel with `precision` inputs, prints the table and, unless `--no-record`,
     /// records the fastest of each for the adapter.
     fn tune(&self, device: &Device, adapter: &Adapter, precision: Precision) -> anyhow::Result<()> {
-        let shape = self.shape(precision)?;
+        let (shape, norm_eps) = self.shape(precision)?;
         println!(
             "attention on {} ({}): {} pair(s) x {} heads x {} tokens x head width {}, {}",
             adapter.name,
@@ -136,6 +137,7 @@ impl AttentionArgs {
         let timer = Timer {
             device: device.clone(),
             shape: [shape.batch, shape.heads, shape.tokens, shape.head_dim],
+            norm_eps,
             precision,
             warmup: self.warmup,
             iters: self.iters.max(1),
@@ -175,8 +177,8 @@ impl AttentionArgs {
     }
 
     /// The shapes to time at: the config's heads and head width, the tokens of `--res`, in
-    /// `precision`.
-    fn shape(&self, precision: Precision) -> anyhow::Result<Shape> {
+    /// `precision`; and the config's `norm_eps` (of QK-norm).
+    fn shape(&self, precision: Precision) -> anyhow::Result<(Shape, f64)> {
         let (config, model) = match &self.config {
             Some(path) => (path.display().to_string(), load_config(path)?.model),
             None => {
@@ -193,7 +195,7 @@ impl AttentionArgs {
         );
         anyhow::ensure!(self.batch >= 1, "--batch must be at least 1");
         let side = res / model.patch_size;
-        Ok(Shape {
+        let shape = Shape {
             config,
             resolution: res,
             batch: self.batch,
@@ -201,7 +203,8 @@ impl AttentionArgs {
             tokens: 2 * side * side,
             head_dim: model.width / model.heads,
             precision: precision.to_string(),
-        })
+        };
+        Ok((shape, model.norm_eps))
     }
 }
 
@@ -226,10 +229,13 @@ pub fn in_force(device: &Device, precision: Precision) -> String {
     format!("{choice} ({origin})")
 }
 
-/// Times attention on one device at one shape.
+/// Times a block's attention on one device at one shape.
 struct Timer {
     device: Device,
+    /// `[batch, heads, tokens, head_dim]`.
     shape: [usize; 4],
+    /// QK-norm's epsilon.
+    norm_eps: f64,
     precision: Precision,
     warmup: usize,
     iters: usize,
@@ -239,7 +245,8 @@ impl Timer {
     /// The kernels to time without and with a gradient: every one, less the flash kernels
     /// where they do not take this shape (a head wider than they allow).
     fn kernels(&self) -> (Vec<AttentionKernel>, Vec<AttentionKernel>) {
-        let [q, k, v] = self.inputs(&self.device);
+        let one_head = [1, 1, 1, self.shape[3]];
+        let [q, k, v] = std::array::from_fn(|_| self.random(one_head, &self.device));
         let flash = prism_kernels::device::supported(&q, &k, &v);
         if !flash {
             println!("(the flash kernels do not take this shape: not timed)");
@@ -279,17 +286,17 @@ impl Timer {
             .collect()
     }
 
-    /// Random `q`, `k`, `v` of the shape, in the precision, on `device`.
-    fn inputs(&self, device: &Device) -> [Tensor<4>; 3] {
-        std::array::from_fn(|_| {
-            Tensor::<4>::random(self.shape, Distribution::Normal(0.0, 1.0), device)
-                .cast(self.precision.dtype())
-        })
+    /// A tensor of standard normal values of `shape`, in the precision, on `device`.
+    fn random<const D: usize>(&self, shape: [usize; D], device: &Device) -> Tensor<D> {
+        Tensor::<D>::random(shape, Distribution::Normal(0.0, 1.0), device)
+            .cast(self.precision.dtype())
     }
 
-    /// The median time of one call through `kernel` (with a gradient when `tracked`: forward
-    /// and backward of `sum(attention * w)`), and with a gradient the bytes its forward pass
-    /// keeps for the backward pass.
+    /// The median time of one call of a block's attention (`prism_kernels::self_attention`
+    /// on a random joint projection `[batch, tokens, 3 heads head_dim]`, QK-norm's gains at 1)
+    /// through `kernel` (with a gradient when `tracked`: forward and backward of
+    /// `sum(attention * w)`, the gains' gradients included), and with a gradient the bytes its
+    /// forward pass keeps for the backward pass.
     ///
     /// # Errors
     /// A device that stopped running the kernels.
@@ -300,17 +307,29 @@ impl Timer {
         } else {
             self.device.clone()
         };
-        let [q, k, v] = self
-            .inputs(&device)
-            .map(|x| if tracked { x.require_grad() } else { x });
-        let weights = Tensor::<4>::random(self.shape, Distribution::Normal(0.0, 1.0), &device)
-            .cast(self.precision.dtype());
-        let forward = || choice.run(|| prism_kernels::attention(q.clone(), k.clone(), v.clone()));
+        let [batch, heads, tokens, head_dim] = self.shape;
+        let width = heads * head_dim;
+        let gain = || Tensor::<1>::ones([head_dim], &device).cast(self.precision.dtype());
+        let mut qkv: Tensor<3> = self.random([batch, tokens, 3 * width], &device);
+        let (mut q_gain, mut k_gain) = (gain(), gain());
+        if tracked {
+            qkv = qkv.require_grad();
+            q_gain = q_gain.require_grad();
+            k_gain = k_gain.require_grad();
+        }
+        let weights = self.random([batch, tokens, width], &device);
+        let softmax = Mixing::Softmax { bf16: false };
+        let forward = || {
+            choice.run(|| {
+                let (q, k) = (q_gain.clone(), k_gain.clone());
+                prism_kernels::self_attention(qkv.clone(), q, k, heads, self.norm_eps, softmax)
+            })
+        };
         let call = || {
             let out = forward();
             let kept = tracked.then(|| {
                 let grads = (out.clone() * weights.clone()).sum().backward();
-                [&q, &k, &v].map(|x| x.grad(&grads))
+                (qkv.grad(&grads), q_gain.grad(&grads), k_gain.grad(&grads))
             });
             let synced = self.sync();
             drop((out, kept));
