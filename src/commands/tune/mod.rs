@@ -24,9 +24,11 @@ use record::{Adapter, Choice, KernelTime, Record, Shape};
 /// What to tune.
 #[derive(Subcommand, Debug)]
 pub enum TuneCommand {
-    /// Time a block's softmax attention through each GPU kernel (Burn's attention op, prism's
-    /// flash kernels, prism's matmul-softmax-matmul) at a config's shapes, with and without a
-    /// gradient, and keep the fastest of each for this adapter and precision: attention on it
+    /// Time a block's attention through each GPU kernel; keep the fastest for this adapter.
+    ///
+    /// Times the model's softmax attention call through Burn's attention op, prism's flash
+    /// kernels and prism's matmul-softmax-matmul at a config's shapes, with and without a
+    /// gradient, and keeps the fastest of each for this adapter and precision: attention on it
     /// takes them from then on, unless PRISM_ATTENTION says otherwise. Each record is
     /// <cache folder>/attention/<adapter's fingerprint>-<precision>.json; delete it to go back
     /// to Burn's ops.
