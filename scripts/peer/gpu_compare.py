@@ -20,8 +20,8 @@ For a machine with the GPU, its driver and PyTorch, but no Rust toolchain and no
    the teacher's and the student's FPS at 512 px, and the teacher's training step at its own
    resolution, 512 px, one (source, target) pair per step, with its peak memory: the paper's
    model must train at 512 px on one 80 GB card (stored scores alone would take about 116 GB).
-5. Runs `prism tune attention` at the backbone's training shapes (in the first precision):
-   each attention kernel alone, with and without a gradient, and the memory it keeps for the
+5. Runs `prism tune attention` on wgpu at the backbone's training shapes (in the first
+   precision): a block's attention through each kernel, with and without a gradient, and the memory it keeps for the
    backward pass; the kernels it finds fastest are what prism would take on this card once
    tuned (recorded in a cache folder of its own, so the other stages run the default). The dry
    run tunes on whatever wgpu adapter the machine has (lavapipe).
@@ -93,13 +93,12 @@ class Plan:
     stage_three: int
     group: int
     paper_res: int         # the paper config's rows' resolution (forward and training)
-    tune_backend: str      # the backend `prism tune attention` runs on (a GPU one)
     quickstart: list       # arguments of `prism quickstart` besides --backend and --out
     budget: float          # default seconds for the whole run
 
 
-GPU = Plan("cuda", "wgpu", 512, 256, 128, 768, 12, 12, 24, 6, 512, "wgpu", [], 450)
-DRY = Plan("cpu", "flex", 64, 32, 32, 64, 2, 2, 4, 3, 64, "wgpu",
+GPU = Plan("cuda", "wgpu", 512, 256, 128, 768, 12, 12, 24, 6, 512, [], 450)
+DRY = Plan("cpu", "flex", 64, 32, 32, 64, 2, 2, 4, 3, 64,
            ["--fast", "--teacher-steps", "2", "--student-steps", "2", "--eval-views", "2"], 900)
 
 
@@ -383,11 +382,11 @@ def measure_paper(run, plan, args, prism, config, env):
 
 
 def measure_tune(run, plan, args, prism, config, env, precision, work):
-    """`prism tune attention` at the backbone's training shapes in `precision`, recorded in a
-    cache folder of its own: the record it writes (each kernel's ms, the bytes it keeps for
+    """`prism tune attention` on wgpu (a GPU's, or lavapipe in a dry run) at the backbone's
+    training shapes in `precision`, recorded in a cache folder of its own: the record it writes (each kernel's ms, the bytes it keeps for
     the backward pass, the fastest of each), or None when it did not finish."""
     cache = os.path.join(work, "tune-cache")
-    cmd = [prism, "tune", "attention", "--backend", plan.tune_backend, "--config", config,
+    cmd = [prism, "tune", "attention", "--backend", "wgpu", "--config", config,
            "--res", str(plan.train_res), "--precision", precision,
            "--warmup", str(args.warmup), "--iters", str(max(args.iters, 5))]
 

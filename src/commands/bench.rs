@@ -443,8 +443,7 @@ fn device_name(device: &burn::tensor::Device) -> String {
 }
 
 /// On a GPU backend, `, attention` and the kernels in force for blocks in `precision` with where
-/// they come from; empty
-/// on the CPU backends, where f32 attention is the fused host kernel.
+/// they come from; empty on the CPU backends, where f32 attention is the fused host kernel.
 fn attention_in_force(device: &burn::tensor::Device, precision: Precision) -> String {
     if prism_kernels::is_host(device) {
         return String::new();
