@@ -187,9 +187,10 @@ impl Record {
 }
 
 /// The choice recorded for `device`'s adapter with `dtype` inputs, `None` where none was
-/// recorded (or the dtype is none of f32, f16, bf16). A record that
-/// cannot be read, or names no kernel, is reported on stderr and ignored; a record in force
-/// is named on stderr, once per device, so a run's log says which attention it ran.
+/// recorded (or the dtype is none of f32, f16, bf16). A record that cannot be read, or names
+/// no kernel, is reported on stderr and ignored; a record in force is named on stderr (once
+/// per device and dtype: the caller keeps the answer), so a run's log says which attention it
+/// ran.
 fn recorded_choice(device: &Device, dtype: DType) -> Option<GpuAttention> {
     let precision = match dtype {
         DType::F32 => Precision::F32,
