@@ -21,17 +21,20 @@ For a machine with the GPU, its driver and PyTorch, but no Rust toolchain and no
    resolution, 512 px, one (source, target) pair per step, with its peak memory: the paper's
    model must train at 512 px on one 80 GB card (stored scores alone would take about 116 GB).
 5. Runs `prism tune attention` on wgpu at the backbone's training shapes (in the first
-   precision): a block's attention through each kernel, with and without a gradient, and the memory it keeps for the
-   backward pass; the kernels it finds fastest are what prism would take on this card once
-   tuned (recorded in a cache folder of its own, so the other stages run the default). The dry
-   run tunes on whatever wgpu adapter the machine has (lavapipe).
+   precision): a block's attention through each kernel, with and without a gradient, and the
+   memory it keeps for the backward pass; the kernels it finds fastest are what prism would
+   take on this card once tuned (recorded in a cache folder of its own, so the other stages
+   run the default). The dry run tunes on whatever wgpu adapter the machine has (lavapipe).
 6. Optionally, `prism quickstart --backend wgpu`, timed, with its phase table.
+
+The report names the commit the pack's binary was built from (the pack's build.json), and a
+warning is printed when the repository it runs in is at another commit.
 
 It writes the tables to OUT/gpu_compare.md, everything to OUT/gpu_compare.json and the
 commands' output to OUT/log.txt. The stages run one after the other (never two at once: they
 share the card), most wanted first (PyTorch bf16, the paths in the first precision, the
-paper config, the other precisions, PyTorch TF32 and f32, the quick start), each within what is
-left of --budget seconds (450 by default, so that the whole command ends within 8 minutes); one
+paper config, the tune stage, the other precisions, PyTorch TF32 and f32, the quick start),
+each within what is left of --budget seconds (450 by default, so that the whole command ends within 8 minutes); one
 stopped at the budget or failing is reported and the next goes on. --dry-run does the same on
 the CPU at tiny shapes (PyTorch on the CPU, prism on flex, where every path runs prism's fused
 CPU kernel) to check the whole flow on a machine without a GPU.
@@ -226,6 +229,40 @@ def unpack_prism(pack, work):
     return binary
 
 
+def pack_build(pack, prism_arg):
+    """What the pack's binary was built from, as pack_for_gpu.sh wrote it (`build.json`: the
+    commit, whether the tree had uncommitted changes, the build and the date), or a note
+    saying it is not known (a binary passed with --prism, or a pack without the file).
+    Printed, with a warning when the repository here is at another commit."""
+    if prism_arg:
+        build = {"note": f"--prism {prism_arg}: not from a pack, commit not known"}
+    else:
+        try:
+            with open(os.path.join(pack, "build.json")) as f:
+                build = json.load(f)
+        except (OSError, ValueError) as e:
+            build = {"note": f"{pack}/build.json not readable ({e}): commit not known"}
+    say(f"prism: {describe_build(build)}")
+    try:
+        head = subprocess.run(["git", "-C", REPO, "rev-parse", "HEAD"], capture_output=True,
+                              text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return build
+    if build.get("commit") and build["commit"] != head:
+        say(f"WARNING: the pack was built from {build['commit'][:12]}, the repository here is at "
+            f"{head[:12]}: run scripts/peer/pack_for_gpu.sh again")
+    return build
+
+
+def describe_build(build):
+    """One line naming the binary's commit and build, for the log and the report."""
+    if "commit" not in build:
+        return build.get("note", "commit not known")
+    dirty = " with uncommitted changes" if build.get("dirty") else ""
+    return (f"built from commit {build['commit'][:12]}{dirty}, {build.get('build', '?')}, "
+            f"{build.get('date', '?')}")
+
+
 def known_libraries():
     """The loader cache's library names and paths (`ldconfig -p`), empty without ldconfig."""
     try:
@@ -383,8 +420,9 @@ def measure_paper(run, plan, args, prism, config, env):
 
 def measure_tune(run, plan, args, prism, config, env, precision, work):
     """`prism tune attention` on wgpu (a GPU's, or lavapipe in a dry run) at the backbone's
-    training shapes in `precision`, recorded in a cache folder of its own: the record it writes (each kernel's ms, the bytes it keeps for
-    the backward pass, the fastest of each), or None when it did not finish."""
+    training shapes in `precision`, recorded in a cache folder of its own: the record it
+    writes (each kernel's ms, the bytes it keeps for the backward pass, the fastest of each),
+    or None when it did not finish."""
     cache = os.path.join(work, "tune-cache")
     cmd = [prism, "tune", "attention", "--backend", "wgpu", "--config", config,
            "--res", str(plan.train_res), "--precision", precision,
@@ -520,7 +558,7 @@ def report(run, plan, context, torch_rows, prism_rows, paper_rows, tune, quickst
     parts = [f"# prism and PyTorch on {context['gpu'] or plan.device} ({context['date']})\n",
              f"Command: `{context['command']}`. Backbone: width {plan.width}, {plan.heads} "
              f"heads, {plan.stage_one} + {plan.stage_three} blocks, patch 8, no geometry "
-             f"parts; PyTorch {context['torch']}.\n",
+             f"parts; PyTorch {context['torch']}; prism {describe_build(context['build'])}.\n",
              torch_table(plan, torch_rows), prism_table(plan, torch_rows, prism_rows)]
     if paper_rows is not None:
         parts.append(paper_table(plan, paper_rows))
@@ -601,6 +639,7 @@ def main():
     say(f"card: {context['gpu'] or 'no nvidia-smi'}; PyTorch {context['torch']}")
     with tempfile.TemporaryDirectory(prefix="gpu-compare-") as work:
         prism = args.prism or unpack_prism(args.pack, work)
+        context["build"] = pack_build(args.pack, args.prism)
         env, context["vulkan"] = vulkan_env(args.pack, work)
         env["PRISM_CACHE_DIR"] = os.path.join(work, "cache")
         if os.path.isfile(LPIPS_WEIGHTS):

@@ -3,8 +3,9 @@
 # no network, into gpu-pack/ (ignored by git): prism built with --features vulkan in release
 # mode (kernels compiled to SPIR-V, the path to the tensor cores), stripped and xz-compressed
 # (prism.xz), and the Debian packages of the Vulkan loader (libvulkan1) and of libglvnd
-# (libglvnd0, which NVIDIA's Vulkan driver library links to). The build has a target folder of
-# its own (target/vulkan, or CARGO_TARGET_DIR), so that it leaves the default build's alone.
+# (libglvnd0, which NVIDIA's Vulkan driver library links to), with build.json naming the commit
+# it was built from. The build has a target folder of its own (target/vulkan, or
+# CARGO_TARGET_DIR), so that it leaves the default build's alone.
 # Checks that the pack and the working tree (what a device call carries) fit in 64 MiB, then
 # prints the command that runs the comparison there.
 #
@@ -44,6 +45,18 @@ mkdir -p "$pack"
 strip -o "$pack/prism" "$binary"
 xz -T0 -6 -f "$pack/prism"
 echo "$pack/prism.xz: $(du -h "$pack/prism.xz" | cut -f1) ($what)"
+# What the binary was built from, for gpu_compare.py's report: the commit, and whether the
+# tree had changes not committed (the build then holds more than the commit says). A dry run
+# packs a binary built earlier, from whatever the tree was then: it names no commit.
+if [ "$pack" = gpu-pack ]; then
+    dirty=false
+    [ -z "$(git status --porcelain)" ] || dirty=true
+    printf '{"commit": "%s", "dirty": %s, "build": "%s", "date": "%s"}\n' \
+        "$(git rev-parse HEAD)" "$dirty" "$what" "$(date -u +%Y-%m-%dT%H:%M:%SZ)"
+else
+    printf '{"note": "%s, built before packing: commit not known"}\n' "$what"
+fi > "$pack/build.json"
+echo "$pack/build.json: $(cat "$pack/build.json")"
 
 rm -f "$pack"/*.deb
 if ! (cd "$pack" && apt-get download "${packages[@]}"); then
