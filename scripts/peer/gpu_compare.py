@@ -34,10 +34,10 @@ It writes the tables to OUT/gpu_compare.md, everything to OUT/gpu_compare.json a
 commands' output to OUT/log.txt. The stages run one after the other (never two at once: they
 share the card), most wanted first (PyTorch bf16, the paths in the first precision, the
 paper config, the tune stage, the other precisions, PyTorch TF32 and f32, the quick start),
-each within what is left of --budget seconds (450 by default, so that the whole command ends within 8 minutes); one
-stopped at the budget or failing is reported and the next goes on. --dry-run does the same on
-the CPU at tiny shapes (PyTorch on the CPU, prism on flex, where every path runs prism's fused
-CPU kernel) to check the whole flow on a machine without a GPU.
+each within what is left of --budget seconds (450 by default, so that the whole command ends
+within 8 minutes); one stopped at the budget or failing is reported and the next goes on.
+--dry-run does the same on the CPU at tiny shapes (PyTorch on the CPU, prism on flex, where
+every path runs prism's fused CPU kernel) to check the whole flow on a machine without a GPU.
 
 usage (from the repository root):
     python3 scripts/peer/gpu_compare.py --pack gpu-pack --out OUT [--budget 450]

@@ -23,12 +23,14 @@ limit_mib=64
 
 case "${1:-}" in
     --dry-run)
+        dry_run=true
         pack=target/gpu-pack-dry
         binary="${CARGO_TARGET_DIR:-target}/release/prism"
         [ -x "$binary" ] || { echo "$binary: not built (cargo build --release)" >&2; exit 1; }
         what="the default build's release binary (WGSL): a dry run"
         ;;
     "")
+        dry_run=false
         pack=gpu-pack
         export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-target/vulkan}"
         cargo build --release --features vulkan
@@ -48,7 +50,7 @@ echo "$pack/prism.xz: $(du -h "$pack/prism.xz" | cut -f1) ($what)"
 # What the binary was built from, for gpu_compare.py's report: the commit, and whether the
 # tree had changes not committed (the build then holds more than the commit says). A dry run
 # packs a binary built earlier, from whatever the tree was then: it names no commit.
-if [ "$pack" = gpu-pack ]; then
+if ! $dry_run; then
     dirty=false
     [ -z "$(git status --porcelain)" ] || dirty=true
     printf '{"commit": "%s", "dirty": %s, "build": "%s", "date": "%s"}\n' \
@@ -78,7 +80,7 @@ if [ "$total_mib" -gt "$limit_mib" ]; then
     exit 1
 fi
 
-if [ "$pack" = target/gpu-pack-dry ]; then
+if $dry_run; then
     echo
     echo "The comparison's flow on this CPU (a Python with PyTorch), from this pack:"
     echo "    python3 scripts/peer/gpu_compare.py --dry-run --pack $pack --out runs/gpu-compare-dry"
