@@ -2,9 +2,13 @@
 
 For a machine with the GPU, its driver and PyTorch, but no Rust toolchain and no network:
 
-1. Unpacks the pack of scripts/peer/pack_for_gpu.sh (`prism.xz`, a stripped release binary
-   built with `--features vulkan`, and the Vulkan loader's Debian packages) and points the
-   Vulkan loader at the NVIDIA driver's ICD (printing what it found).
+1. Unpacks the pack of scripts/peer/pack_for_gpu.sh (`prism.tar.xz`: prism's stripped release
+   binary built with `--features vulkan`, kernels in SPIR-V, and the default build's,
+   `prism-wgsl`, kernels in WGSL; the Vulkan loader's Debian packages) and points the Vulkan
+   loader at the NVIDIA driver's ICD (printing what it found). A first short run of the SPIR-V
+   build (the teacher's forward pass at 64 px) checks that it runs on the card; should it fail
+   (it crashes on lavapipe), every later stage runs the WGSL build instead, and the report
+   says so.
 2. Times the PyTorch model (torch_backbone.py: `F.scaled_dot_product_attention`) at the paper
    backbone's shapes (width 768, 12 heads, 12 + 24 blocks, patch 8, no geometry parts) with
    bf16 autocast, TF32 and f32.
@@ -12,7 +16,7 @@ For a machine with the GPU, its driver and PyTorch, but no Rust toolchain and no
    (`PRISM_ATTENTION`): `burn`, Burn's attention op (for training Burn decomposes it into
    matmul, softmax, matmul, the `unfused` path, so that path's training step is not timed
    twice); `unfused`, prism's matmul-softmax-matmul; `flash`, prism's flash kernels; each with
-   the blocks in f32, bf16 and f16: the teacher's forward pass of one pair at 512 px (and the
+   the blocks in f32, f16 and bf16: the teacher's forward pass of one pair at 512 px (and the
    student's and the all-linear model's once per precision, on the `burn` path: linear
    attention takes none of the paths) and the teacher's training step at 256 px, median ms and
    peak memory.
@@ -20,20 +24,23 @@ For a machine with the GPU, its driver and PyTorch, but no Rust toolchain and no
    the teacher's and the student's FPS at 512 px, and the teacher's training step at its own
    resolution, 512 px, one (source, target) pair per step, with its peak memory: the paper's
    model must train at 512 px on one 80 GB card (stored scores alone would take about 116 GB).
-5. Runs `prism tune attention` on wgpu at the backbone's training shapes (in the first
+5. Times the WGSL build on Burn's attention path in the first precision (its forward rows and
+   its training step), beside the SPIR-V build's rows: which compiler is faster on the card.
+6. Runs `prism tune attention` on wgpu at the backbone's training shapes (in the first
    precision): a block's attention through each kernel, with and without a gradient, and the
    memory it keeps for the backward pass; the kernels it finds fastest are what prism would
    take on this card once tuned (recorded in a cache folder of its own, so the other stages
    run the default). The dry run tunes on whatever wgpu adapter the machine has (lavapipe).
-6. Optionally, `prism quickstart --backend wgpu`, timed, with its phase table.
+7. Optionally, `prism quickstart --backend wgpu`, timed, with its phase table.
 
 The report names the commit the pack's binary was built from (the pack's build.json), and a
 warning is printed when the repository it runs in is at another commit.
 
 It writes the tables to OUT/gpu_compare.md, everything to OUT/gpu_compare.json and the
 commands' output to OUT/log.txt. The stages run one after the other (never two at once: they
-share the card), most wanted first (PyTorch bf16, the paths in the first precision, the
-paper config, the tune stage, the other precisions, PyTorch TF32 and f32, the quick start),
+share the card), most wanted first (PyTorch bf16, the SPIR-V check, the paths in the first
+precision, the paper config, the tune stage, the WGSL build, the other precisions, PyTorch
+TF32 and f32, the quick start),
 each within what is left of --budget seconds (450 by default, so that the whole command ends
 within 8 minutes); one stopped at the budget or failing is reported and the next goes on.
 --dry-run does the same on the CPU at tiny shapes (PyTorch on the CPU, prism on flex, where
@@ -41,7 +48,7 @@ every path runs prism's fused CPU kernel) to check the whole flow on a machine w
 
 usage (from the repository root):
     python3 scripts/peer/gpu_compare.py --pack gpu-pack --out OUT [--budget 450]
-        [--paths burn,unfused,flash] [--precisions f32,bf16,f16] [--paper-precisions f32]
+        [--paths burn,unfused,flash] [--precisions f32,f16,bf16] [--paper-precisions f32]
         [--no-paper] [--no-quickstart] [--iters 3] [--warmup 1] [--prism FILE] [--dry-run]
 """
 import argparse
@@ -54,8 +61,10 @@ import lzma
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
+import tarfile
 import tempfile
 import time
 
@@ -77,6 +86,8 @@ PAPER_FPS = {"teacher": 8.8, "student": 24.0}
 TORCH_DTYPES = ["bf16", "tf32", "f32"]
 # prism's attention paths (`PRISM_ATTENTION`), as the tables name them.
 PATHS = {"burn": "Burn's attention op", "unfused": "prism unfused", "flash": "prism flash"}
+# The pack's binaries by the compiler their kernels go through on a Vulkan adapter.
+BUILDS = {"SPIR-V": "prism", "WGSL": "prism-wgsl"}
 MIB = 1024 * 1024
 # The card the paper config must train on at 512 px.
 TARGET_CARD_BYTES = 80 * 1000 ** 3
@@ -142,7 +153,7 @@ class Run:
             record["error"] = f"stopped at the budget, after {left:.0f} s"
         except subprocess.CalledProcessError as e:
             tail = (e.stderr or "").strip().splitlines()[-1:] or [""]
-            record["error"] = f"exit status {e.returncode}: {tail[0]}"
+            record["error"] = f"{exit_reason(e.returncode)}: {tail[0]}".rstrip(": ")
         except (OSError, ValueError, KeyError) as e:
             record["error"] = f"{type(e).__name__}: {e}"
         finally:
@@ -150,6 +161,17 @@ class Run:
             if record["error"]:
                 say(f"== {name}: {record['error']}")
         return None
+
+
+def exit_reason(returncode):
+    """A failed command's exit status in words: `exit status 1`, or the signal that killed it
+    (`killed by SIGSEGV`)."""
+    if returncode < 0:
+        try:
+            return f"killed by {signal.Signals(-returncode).name}"
+        except ValueError:
+            return f"killed by signal {-returncode}"
+    return f"exit status {returncode}"
 
 
 def say(text):
@@ -216,17 +238,48 @@ def paper_config(plan, path):
 
 
 def unpack_prism(pack, work):
-    """The prism binary of the pack (`prism.xz`), decompressed into `work`."""
-    packed = os.path.join(pack, "prism.xz")
+    """The pack's binaries (`prism.tar.xz`), extracted into `work`: {compiler: path}."""
+    packed = os.path.join(pack, "prism.tar.xz")
     if not os.path.isfile(packed):
         raise SystemExit(f"{packed}: no such file (make the pack with "
                          "scripts/peer/pack_for_gpu.sh, or pass --prism)")
-    binary = os.path.join(work, "prism")
-    with lzma.open(packed) as src, open(binary, "wb") as dst:
-        shutil.copyfileobj(src, dst)
-    os.chmod(binary, 0o755)
-    say(f"prism: {packed} unpacked to {binary} ({os.path.getsize(binary) / MIB:.0f} MiB)")
-    return binary
+    with lzma.open(packed) as src, tarfile.open(fileobj=src, mode="r|") as tar:
+        tar.extractall(work, filter="data")
+    binaries = {}
+    for build, name in BUILDS.items():
+        binaries[build] = os.path.join(work, name)
+        if not os.path.isfile(binaries[build]):
+            raise SystemExit(f"{packed}: no {name} in it (make the pack again with "
+                             "scripts/peer/pack_for_gpu.sh)")
+        say(f"prism: {name} ({build}) unpacked to {binaries[build]} "
+            f"({os.path.getsize(binaries[build]) / MIB:.0f} MiB)")
+    return binaries
+
+
+def check_build(run, plan, binaries, config, env):
+    """The build the prism stages run: the SPIR-V one when a first short run of it (the
+    teacher's forward pass at 64 px) succeeds, else the WGSL one. Returns (build, failure):
+    how the SPIR-V build's run failed, or None."""
+    if "WGSL" not in binaries:
+        return next(iter(binaries)), None
+    rows = run.stage("prism SPIR-V build, first run", lambda left: run_prism(
+        binaries["SPIR-V"], config, "64", plan.backend, 0, 1, 0, ["--models", "teacher"], env,
+        timeout=min(left, 180), log=run.log))
+    if rows is not None:
+        return "SPIR-V", None
+    failure = run.stages[-1]["error"]
+    say(f"prism: the SPIR-V build failed its first run ({failure}): the WGSL build takes over")
+    return "WGSL", failure
+
+
+def describe_compiler(build, failure):
+    """One sentence naming the build prism's stages ran, for the report."""
+    if failure:
+        return (f"prism's stages ran the WGSL build: the SPIR-V build failed its first run "
+                f"({failure})")
+    if build == "SPIR-V":
+        return "prism's stages ran the SPIR-V build, but for the rows marked WGSL"
+    return "prism's stages ran the binary passed with --prism"
 
 
 def pack_build(pack, prism_arg):
@@ -383,22 +436,22 @@ def with_path(env, path):
     return dict(env, PRISM_ATTENTION=path)
 
 
-def measure_prism(run, plan, args, prism, config, env, precision):
-    """The prism rows of the blocks in `precision`, one `prism bench` per attention path of
-    --paths: {"path precision": {(model, res): row}}. The teacher's forward pass on every
-    path, the student and the all-linear model on `burn`'s; the training step on every path
-    but `burn`'s (which trains through `unfused`'s ops) unless `burn` is the only one."""
+def measure_prism(run, plan, args, build, prism, config, env, precision, paths):
+    """The rows of the prism binary `prism` (of the compiler `build`) with the blocks in
+    `precision`, one `prism bench` per attention path of `paths`:
+    {"build path precision": {(model, res): row}}. The teacher's forward pass on every path,
+    the student and the all-linear model on `burn`'s; the training step on every path but
+    `burn`'s (which trains through `unfused`'s ops) unless `burn` is the only one."""
     results = {}
-    paths = args.paths.split(",")
     for path in paths:
         models = "teacher,student,linear" if path == "burn" else "teacher"
         train = 0 if path == "burn" and len(paths) > 1 else args.train_steps
         extra = ["--models", models, "--precision", precision]
-        rows = run.stage(f"prism {plan.backend} {path} {precision}",
+        rows = run.stage(f"prism {build} {plan.backend} {path} {precision}",
                          lambda left, e=extra, t=train, p=path: run_prism(
                              prism, config, str(plan.forward_res), plan.backend, args.warmup,
                              args.iters, t, e, with_path(env, p), timeout=left, log=run.log))
-        results[f"{path} {precision}"] = rows or {}
+        results[f"{build} {path} {precision}"] = rows or {}
     return results
 
 
@@ -485,17 +538,18 @@ def torch_table(plan, torch_rows):
 
 
 def prism_table(plan, torch_rows, prism_rows):
-    """Markdown table of prism's rows, one per (attention path, block precision): median ms,
-    the ratio to PyTorch bf16, and peak memory (the memory pools' reservation)."""
+    """Markdown table of prism's rows, one per (build, attention path, block precision): median
+    ms, the ratio to PyTorch bf16, and peak memory (the memory pools' reservation)."""
     f, t = plan.forward_res, plan.train_res
     base = torch_rows.get("bf16", {})
-    lines = [f"| attention | blocks | teacher {f} px ms | / PyTorch bf16 | student {f} px ms | "
-             f"all-linear {f} px ms | forward peak MiB | training step {t} px ms | "
-             "/ PyTorch bf16 | training peak MiB |", "|---|---|" + "---:|" * 8]
+    lines = [f"| kernels | attention | blocks | teacher {f} px ms | / PyTorch bf16 | "
+             f"student {f} px ms | all-linear {f} px ms | forward peak MiB | "
+             f"training step {t} px ms | "
+             "/ PyTorch bf16 | training peak MiB |", "|---|---|---|" + "---:|" * 8]
     for name, rows in prism_rows.items():
-        path, precision = name.split(" ")
+        build, path, precision = name.split(" ")
         teacher, step = rows.get(("teacher", f)), rows.get(("train_step", t))
-        lines.append(f"| {PATHS[path]} | {precision} | " + " | ".join([
+        lines.append(f"| {build} | {PATHS[path]} | {precision} | " + " | ".join([
             cell(teacher, "ms"), ratio(teacher, base.get(("teacher", f))),
             cell(rows.get(("student", f)), "ms"), cell(rows.get(("linear", f)), "ms"),
             cell(teacher, "peak_mem_bytes", MIB, 0), cell(step, "ms"),
@@ -558,7 +612,8 @@ def report(run, plan, context, torch_rows, prism_rows, paper_rows, tune, quickst
     parts = [f"# prism and PyTorch on {context['gpu'] or plan.device} ({context['date']})\n",
              f"Command: `{context['command']}`. Backbone: width {plan.width}, {plan.heads} "
              f"heads, {plan.stage_one} + {plan.stage_three} blocks, patch 8, no geometry "
-             f"parts; PyTorch {context['torch']}; prism {describe_build(context['build'])}.\n",
+             f"parts; PyTorch {context['torch']}; prism {describe_build(context['build'])}. "
+             f"{describe_compiler(context['compiler'], context['spirv_failure'])}.\n",
              torch_table(plan, torch_rows), prism_table(plan, torch_rows, prism_rows)]
     if paper_rows is not None:
         parts.append(paper_table(plan, paper_rows))
@@ -594,8 +649,9 @@ def torch_version():
 def parse_args():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pack", default="gpu-pack",
-                    help="folder of prism.xz and the Vulkan loader's .deb files")
-    ap.add_argument("--prism", help="a prism binary to use instead of the pack's")
+                    help="folder of prism.tar.xz and the Vulkan loader's .deb files")
+    ap.add_argument("--prism", help="a prism binary to use instead of the pack's (the WGSL "
+                    "build's stage is then skipped)")
     ap.add_argument("--out", default=os.path.join("runs", "gpu-compare"),
                     help="folder of gpu_compare.md, gpu_compare.json and log.txt")
     ap.add_argument("--budget", type=float,
@@ -607,7 +663,7 @@ def parse_args():
                     "steps)")
     ap.add_argument("--paths", default="burn,unfused,flash",
                     help="prism's attention paths (PRISM_ATTENTION) to time (comma-separated)")
-    ap.add_argument("--precisions", default="f32,bf16,f16",
+    ap.add_argument("--precisions", default="f32,f16,bf16",
                     help="prism's block precisions to time (comma-separated; the first is "
                     "timed before the paper config, the others after)")
     ap.add_argument("--paper-precisions", default="f32",
@@ -638,7 +694,7 @@ def main():
                "gpu": gpu_name(), "torch": torch_version()}
     say(f"card: {context['gpu'] or 'no nvidia-smi'}; PyTorch {context['torch']}")
     with tempfile.TemporaryDirectory(prefix="gpu-compare-") as work:
-        prism = args.prism or unpack_prism(args.pack, work)
+        binaries = {"--prism": args.prism} if args.prism else unpack_prism(args.pack, work)
         context["build"] = pack_build(args.pack, args.prism)
         env, context["vulkan"] = vulkan_env(args.pack, work)
         env["PRISM_CACHE_DIR"] = os.path.join(work, "cache")
@@ -647,15 +703,22 @@ def main():
         config = backbone_config(plan, os.path.join(work, "backbone.toml"))
         shapes = backbone_shapes(config)
         first, *others = args.precisions.split(",")
+        paths = args.paths.split(",")
         torch_rows = measure_torch(run, plan, args, shapes, TORCH_DTYPES[:1])
-        prism_rows = measure_prism(run, plan, args, prism, config, env, first)
+        build, context["spirv_failure"] = check_build(run, plan, binaries, config, env)
+        context["compiler"], prism = build, binaries[build]
+        prism_rows = measure_prism(run, plan, args, build, prism, config, env, first, paths)
         paper_rows = None
         if args.paper:
             paper = paper_config(plan, os.path.join(work, "paper.toml"))
             paper_rows = measure_paper(run, plan, args, prism, paper, env)
         tune = measure_tune(run, plan, args, prism, config, env, first, work)
+        if build == "SPIR-V":
+            prism_rows.update(measure_prism(run, plan, args, "WGSL", binaries["WGSL"], config,
+                                            env, first, ["burn"]))
         for precision in others:
-            prism_rows.update(measure_prism(run, plan, args, prism, config, env, precision))
+            prism_rows.update(measure_prism(run, plan, args, build, prism, config, env,
+                                            precision, paths))
         torch_rows.update(measure_torch(run, plan, args, shapes, TORCH_DTYPES[1:]))
         quickstart = measure_quickstart(run, plan, prism, env, work) if args.quickstart else None
         report(run, plan, context, torch_rows, prism_rows, paper_rows, tune, quickstart)

@@ -1,18 +1,22 @@
 #!/usr/bin/env bash
 # Packs what scripts/peer/gpu_compare.py needs on a GPU machine that has no Rust toolchain and
-# no network, into gpu-pack/ (ignored by git): prism built with --features vulkan in release
-# mode (kernels compiled to SPIR-V, the path to the tensor cores), stripped and xz-compressed
-# (prism.xz), and the Debian packages of the Vulkan loader (libvulkan1) and of libglvnd
-# (libglvnd0, which NVIDIA's Vulkan driver library links to), with build.json naming the commit
-# it was built from. The build has a target folder of its own (target/vulkan, or
-# CARGO_TARGET_DIR), so that it leaves the default build's alone.
+# no network, into gpu-pack/ (ignored by git): prism's release binary built twice, with
+# --features vulkan (`prism`: kernels compiled to SPIR-V, the path to the tensor cores) and
+# without (`prism-wgsl`: the default build, kernels in WGSL), stripped and xz-compressed
+# together (prism.tar.xz: the two share most of their code, so the second adds about a
+# third); the Debian packages of the Vulkan loader (libvulkan1) and of libglvnd (libglvnd0,
+# which NVIDIA's Vulkan driver library links to); build.json naming the commit they were built
+# from. The WGSL build is the comparison's fallback should the SPIR-V one fail on the card
+# (it crashes on lavapipe), and its row answers which of the two compilers is faster there.
+# The vulkan build has a target folder of its own (target/vulkan, or $CARGO_TARGET_DIR/vulkan),
+# so that it leaves the default build's alone.
 # Checks that the pack and the working tree (what a device call carries) fit in 64 MiB, then
 # prints the command that runs the comparison there.
 #
 # --dry-run packs the release binary of the default build (target/release/prism, WGSL, built
-# already) into target/gpu-pack-dry/ instead, without building: the flow and the sizes,
-# checked on a machine without the time for the vulkan build; it then prints the command that
-# runs the comparison's flow on the CPU from that pack (gpu_compare.py --dry-run).
+# already) under both names into target/gpu-pack-dry/ instead, without building: the flow and
+# the sizes, checked on a machine without the time for the vulkan build; it then prints the
+# command that runs the comparison's flow on the CPU from that pack (gpu_compare.py --dry-run).
 #
 # usage (from anywhere in the repository): scripts/peer/pack_for_gpu.sh [--dry-run]
 set -euo pipefail
@@ -21,21 +25,26 @@ packages=(libvulkan1 libglvnd0)
 # What one device call may carry: the working tree and the pack together.
 limit_mib=64
 
+target_dir="${CARGO_TARGET_DIR:-target}"
+wgsl_binary="$target_dir/release/prism"
 case "${1:-}" in
     --dry-run)
         dry_run=true
         pack=target/gpu-pack-dry
-        binary="${CARGO_TARGET_DIR:-target}/release/prism"
-        [ -x "$binary" ] || { echo "$binary: not built (cargo build --release)" >&2; exit 1; }
-        what="the default build's release binary (WGSL): a dry run"
+        if [ ! -x "$wgsl_binary" ]; then
+            echo "$wgsl_binary: not built (cargo build --release)" >&2
+            exit 1
+        fi
+        spirv_binary="$wgsl_binary"
+        what="the default build's release binary (WGSL) under both names: a dry run"
         ;;
     "")
         dry_run=false
         pack=gpu-pack
-        export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-target/vulkan}"
-        cargo build --release --features vulkan
-        binary="$CARGO_TARGET_DIR/release/prism"
-        what="stripped release binary, --features vulkan"
+        cargo build --release
+        CARGO_TARGET_DIR="$target_dir/vulkan" cargo build --release --features vulkan
+        spirv_binary="$target_dir/vulkan/release/prism"
+        what="stripped release binaries: prism --features vulkan, prism-wgsl the default build"
         ;;
     *)
         echo "usage: $0 [--dry-run]" >&2
@@ -44,10 +53,21 @@ case "${1:-}" in
 esac
 
 mkdir -p "$pack"
-strip -o "$pack/prism" "$binary"
-xz -T0 -6 -f "$pack/prism"
-echo "$pack/prism.xz: $(du -h "$pack/prism.xz" | cut -f1) ($what)"
-# What the binary was built from, for gpu_compare.py's report: the commit, and whether the
+rm -f "$pack"/prism.xz "$pack"/prism.tar.xz
+staging=$(mktemp -d)
+trap 'rm -rf "$staging"' EXIT
+strip -o "$staging/prism" "$spirv_binary"
+if [ "$spirv_binary" = "$wgsl_binary" ]; then
+    ln "$staging/prism" "$staging/prism-wgsl"  # tar stores a hard link once
+else
+    strip -o "$staging/prism-wgsl" "$wgsl_binary"
+fi
+# One xz stream with a dictionary larger than a binary, so that the second binary is coded
+# as matches into the first; single-threaded, as threads would cut the stream into blocks.
+tar -C "$staging" -cf - prism prism-wgsl \
+    | xz -T1 --lzma2=preset=9e,dict=448MiB > "$pack/prism.tar.xz"
+echo "$pack/prism.tar.xz: $(du -h "$pack/prism.tar.xz" | cut -f1) ($what)"
+# What the binaries were built from, for gpu_compare.py's report: the commit, and whether the
 # tree had changes not committed (the build then holds more than the commit says). A dry run
 # packs a binary built earlier, from whatever the tree was then: it names no commit.
 if ! $dry_run; then
