@@ -25,8 +25,9 @@ For a machine with the GPU, its driver and PyTorch, but no Rust toolchain and no
    resolution, 512 px, one (source, target) pair per step, with its peak memory: the paper's
    model must train at 512 px on one 80 GB card (stored scores alone would take about 116 GB).
    Of the bench stages, only its training step runs the 3DGS renderer's backward kernel,
-   which crashes on lavapipe through SPIR-V (once CubeCL's shared-memory bug is patched;
-   BENCHMARKS): a run that fails on the SPIR-V build is repeated on the WGSL build.
+   which crashes through SPIR-V on Mesa 22.3's lavapipe once CubeCL's shared-memory bug is
+   patched (a driver bug; BENCHMARKS): a run that fails on the SPIR-V build is repeated on the
+   WGSL build.
 5. Times the WGSL build on Burn's attention path in the first precision (its forward rows and
    its training step), beside the SPIR-V build's rows: which compiler is faster on the card.
 6. Runs `prism tune attention` on wgpu at the backbone's training shapes (in the first
@@ -462,8 +463,8 @@ def measure_paper(run, plan, args, build, binaries, config, env):
     """The paper config through the flash kernels, per precision of --paper-precisions: the
     teacher's and the student's forward pass and the teacher's training step, all at
     plan.paper_res: {"precision build": {(model, res): row}}. Of the bench stages, only this
-    one runs the 3DGS renderer's backward kernel, which crashes on lavapipe through SPIR-V
-    (BENCHMARKS): a precision that fails on the SPIR-V build is run again on the WGSL build
+    one runs the 3DGS renderer's backward kernel, which crashes through SPIR-V on Mesa 22.3's
+    lavapipe (a driver bug; BENCHMARKS): a precision that fails on the SPIR-V build is run again on the WGSL build
     (a run stopped at the budget leaves too little for it, and the repeat is skipped)."""
     results = {}
     for precision in args.paper_precisions.split(","):
