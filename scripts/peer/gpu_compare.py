@@ -464,8 +464,9 @@ def measure_paper(run, plan, args, build, binaries, config, env):
     teacher's and the student's forward pass and the teacher's training step, all at
     plan.paper_res: {"precision build": {(model, res): row}}. Of the bench stages, only this
     one runs the 3DGS renderer's backward kernel, which crashes through SPIR-V on Mesa 22.3's
-    lavapipe (a driver bug; BENCHMARKS): a precision that fails on the SPIR-V build is run again on the WGSL build
-    (a run stopped at the budget leaves too little for it, and the repeat is skipped)."""
+    lavapipe (a driver bug; BENCHMARKS): a precision that fails on the SPIR-V build is run again
+    on the WGSL build (a run stopped at the budget leaves too little for it, and the repeat is
+    skipped)."""
     results = {}
     for precision in args.paper_precisions.split(","):
         extra = ["--models", "teacher,student", "--precision", precision]
