@@ -5,7 +5,8 @@ use std::path::PathBuf;
 use anyhow::bail;
 use clap::{Args, Subcommand};
 
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressBar;
+use prism_core::progress::progress_bar;
 use prism_core::protocol::NUM_VIEWS;
 use prism_data::SynthOptions;
 use prism_data::check_dataset;
@@ -123,6 +124,16 @@ impl DataCommand {
     }
 }
 
+/// The bar of a dataset job (`job` names it) over `len` views: drawn in place on a terminal,
+/// plain lines on a pipe or a log file, as the training and evaluation bars are.
+fn views_bar(job: &str, len: u64) -> ProgressBar {
+    progress_bar(
+        true,
+        len,
+        &format!("{job} [{{bar:30}}] {{pos}}/{{len}} views {{msg}} {{elapsed}} (ETA {{eta}})"),
+    )
+}
+
 fn synth(args: SynthArgs) -> anyhow::Result<()> {
     let options = SynthOptions {
         subjects: args.subjects,
@@ -132,13 +143,7 @@ fn synth(args: SynthArgs) -> anyhow::Result<()> {
         background: args.background,
         supersample: args.supersample,
     };
-    let bar = ProgressBar::new((options.subjects * NUM_VIEWS) as u64).with_style(
-        ProgressStyle::with_template(
-            "{spinner} synth [{bar:30}] {pos}/{len} views  {msg}  {elapsed} (ETA {eta})",
-        )
-        .expect("valid template")
-        .progress_chars("=> "),
-    );
+    let bar = views_bar("synth", (options.subjects * NUM_VIEWS) as u64);
     let start = std::time::Instant::now();
     let summary = synth_dataset(&args.out, &options, &|| bar.inc(1), &|name, skipped| {
         if skipped {
@@ -169,13 +174,7 @@ fn render(args: RenderArgs) -> anyhow::Result<()> {
         up: args.up,
         facing: args.facing,
     };
-    let bar = ProgressBar::new(0).with_style(
-        ProgressStyle::with_template(
-            "{spinner} render [{bar:30}] {pos}/{len} views  {msg}  {elapsed} (ETA {eta})",
-        )
-        .expect("valid template")
-        .progress_chars("=> "),
-    );
+    let bar = views_bar("render", 0);
     let start = std::time::Instant::now();
     let summary =
         render_scans(

@@ -29,6 +29,14 @@ fn synth_then_check_then_rerun_then_corrupt() {
     let out = synth(&data, &["--test-fraction", "0.34"]);
     assert!(out.status.success(), "{}", text(&out));
     assert!(text(&out).contains("3 subjects written"), "{}", text(&out));
+    // On a pipe its progress comes as plain lines (the first one at once), with no terminal
+    // escapes.
+    let err = common::stderr(&out);
+    assert!(
+        err.contains("synth ") && err.contains("/315 views"),
+        "{err}"
+    );
+    assert!(!err.contains('\u{1b}'), "{err}");
 
     let out = run(&["data", "check", data.to_str().unwrap()]);
     assert!(out.status.success(), "{}", text(&out));

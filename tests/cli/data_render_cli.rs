@@ -97,6 +97,13 @@ fn render_reports_failures_checks_and_reruns() {
         err.contains("1 subject(s) could not be rendered: 0002"),
         "{err}"
     );
+    // Its progress on a pipe comes as plain lines (the first one at once), with no terminal
+    // escapes.
+    assert!(
+        err.contains("render ") && err.contains("/315 views"),
+        "{err}"
+    );
+    assert!(!err.contains('\u{1b}'), "{err}");
     assert!(
         stdout(&out).contains("2 subjects rendered (1 with a body fit), 0 already there, 1 failed"),
         "{}",
