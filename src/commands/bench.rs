@@ -14,7 +14,8 @@ use prism_core::reads::{geometry_host_reads, host_reads};
 use prism_core::steal::{StealProbe, percent};
 use prism_data::DatasetReader;
 use prism_model::{
-    AttentionKind, BenchOptions, BenchRow, MemoryProbe, Precision, bench_forward, load_config,
+    AttentionKind, BenchOptions, BenchRow, MemoryProbe, Precision, PrismConfig, bench_forward,
+    load_config,
 };
 use prism_synth::ensure_synthetic_dataset;
 use prism_train::{
@@ -218,21 +219,8 @@ impl ModelBenchArgs {
                 .file_stem()
                 .map(|s| s.to_string_lossy().into_owned())
                 .unwrap_or_else(|| path.display().to_string());
-            let resolutions = if self.res.is_empty() {
-                vec![config.resolution, 2 * config.resolution]
-            } else {
-                self.res.clone()
-            };
-            if let Some(bad) = resolutions
-                .iter()
-                .find(|&&r| r == 0 || !r.is_multiple_of(config.patch_size))
-            {
-                anyhow::bail!(
-                    "--res {bad} is not a positive multiple of the patch size {} of {}",
-                    config.patch_size,
-                    path.display()
-                );
-            }
+            let default = [config.resolution, 2 * config.resolution];
+            let resolutions = resolutions(&self.res, &default, &config, path)?;
             runs.push((name, config, resolutions));
         }
         print_header();
@@ -298,6 +286,32 @@ fn print_row(row: &BenchRow) {
 }
 
 /// Checks that `precision` runs on `device`.
+/// The resolutions to time: `--res` when given, else `default`; each must be a positive
+/// multiple of the patch size of `config` (read from `path`, which the error names).
+fn resolutions(
+    requested: &[usize],
+    default: &[usize],
+    config: &PrismConfig,
+    path: &Path,
+) -> anyhow::Result<Vec<usize>> {
+    let resolutions = if requested.is_empty() {
+        default
+    } else {
+        requested
+    };
+    if let Some(bad) = resolutions
+        .iter()
+        .find(|&&r| r == 0 || !r.is_multiple_of(config.patch_size))
+    {
+        anyhow::bail!(
+            "--res {bad} is not a positive multiple of the patch size {} of {}",
+            config.patch_size,
+            path.display()
+        );
+    }
+    Ok(resolutions.to_vec())
+}
+
 fn check_precision(precision: Precision, backend: BackendKind) -> anyhow::Result<()> {
     let device = backend.device()?;
     if !precision.supported_on(&device) {
@@ -311,21 +325,7 @@ impl TableArgs {
         let path = self.config.clone().expect("clap requires --config");
         let file = load_config(&path)?;
         let config = file.model;
-        let resolutions = if self.res.is_empty() {
-            vec![config.resolution]
-        } else {
-            self.res.clone()
-        };
-        if let Some(bad) = resolutions
-            .iter()
-            .find(|&&r| r == 0 || !r.is_multiple_of(config.patch_size))
-        {
-            anyhow::bail!(
-                "--res {bad} is not a positive multiple of the patch size {} of {}",
-                config.patch_size,
-                path.display()
-            );
-        }
+        let resolutions = resolutions(&self.res, &[config.resolution], &config, &path)?;
         check_precision(self.precision, self.backend)?;
         let training = if self.train_steps > 0 {
             Some(TrainingConfig::load(&path)?)

@@ -121,23 +121,19 @@ fn bench_times_teacher_student_linear_and_the_training_step() {
 fn bench_rejects_a_resolution_that_is_not_a_multiple_of_the_patch() {
     let dir = scratch("bad-res");
     let config = tiny_config(&dir);
-    let out = output(prism_with_cache(
-        &dir.join("cache"),
-        &[
-            "bench",
-            "--config",
-            config.to_str().unwrap(),
-            "--res",
-            "32,20",
-        ],
-    ));
-    assert_eq!(out.status.code(), Some(1));
-    let stderr = stderr(&out);
-    assert!(
-        stderr.contains("--res 20") && stderr.contains("patch size 8"),
-        "{stderr}"
-    );
-    assert!(!stderr.contains("panicked"), "{stderr}");
+    // The speed table and `bench model` check `--res` the same way, before timing anything.
+    for command in [&["bench"][..], &["bench", "model"]] {
+        let mut args = command.to_vec();
+        args.extend(["--config", config.to_str().unwrap(), "--res", "32,20"]);
+        let out = output(prism_with_cache(&dir.join("cache"), &args));
+        assert_eq!(out.status.code(), Some(1), "{command:?}");
+        let stderr = stderr(&out);
+        assert!(
+            stderr.contains("--res 20") && stderr.contains("patch size 8"),
+            "{command:?}: {stderr}"
+        );
+        assert!(!stderr.contains("panicked"), "{stderr}");
+    }
 }
 
 #[test]
