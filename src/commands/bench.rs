@@ -285,7 +285,6 @@ fn print_row(row: &BenchRow) {
     );
 }
 
-/// Checks that `precision` runs on `device`.
 /// The resolutions to time: `--res` when given, else `default`; each must be a positive
 /// multiple of the patch size of `config` (read from `path`, which the error names).
 fn resolutions(
@@ -312,6 +311,7 @@ fn resolutions(
     Ok(resolutions.to_vec())
 }
 
+/// Checks that `precision` runs on the device of `backend`.
 fn check_precision(precision: Precision, backend: BackendKind) -> anyhow::Result<()> {
     let device = backend.device()?;
     if !precision.supported_on(&device) {
