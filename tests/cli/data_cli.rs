@@ -5,7 +5,7 @@ use crate::common;
 use std::path::Path;
 use std::process::Output;
 
-use common::{run, text};
+use common::{run, stderr, text};
 
 fn synth(out: &Path, extra: &[&str]) -> Output {
     let mut args = vec![
@@ -31,7 +31,7 @@ fn synth_then_check_then_rerun_then_corrupt() {
     assert!(text(&out).contains("3 subjects written"), "{}", text(&out));
     // On a pipe its progress comes as plain lines (the first one at once), with no terminal
     // escapes.
-    let err = common::stderr(&out);
+    let err = stderr(&out);
     assert!(
         err.contains("synth ") && err.contains("/315 views"),
         "{err}"
