@@ -8,7 +8,11 @@ spell of the host falls on every build alike. Prints, per bench row, each build'
 the rounds and the last build's ratio to the first (of the medians, and of the fastest runs),
 then every run's time, and each build's median CPU steal (the hypervisor's share of the CPU
 time while its rows were timed, `cpu_steal` of the bench JSON; builds before it have none).
+Refuses builds whose files are the same bytes: two checkouts built into one target folder can
+leave one commit's binary under both names (BENCHMARKS.md, issue 43's "The main job and a
+clean CI on a fresh model 167 Xeon"), and timing a build against itself shows only noise.
 """
+import hashlib
 import json
 import os
 import statistics
@@ -22,6 +26,7 @@ def main():
         sys.exit(__doc__)
     split = sys.argv.index("--")
     rounds, builds, args = int(sys.argv[1]), sys.argv[2:split], sys.argv[split + 1:]
+    check_distinct(builds)
     times, steal = {}, {}
     for _ in range(rounds):
         for build in builds:
@@ -45,6 +50,23 @@ def main():
     print("CPU steal (median of the rows): " + ", ".join(
         f"{os.path.basename(b)} {100 * statistics.median(steal[b]):.1f}%" if b in steal
         else f"{os.path.basename(b)} n/a" for b in builds))
+
+
+def check_distinct(builds):
+    """Exits naming any two builds whose files hold the same bytes."""
+    seen = {}
+    for build in builds:
+        if not os.path.isfile(build):
+            sys.exit(f"{build}: no such file (a prism binary is expected)")
+        digest = hashlib.sha256()
+        with open(build, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                digest.update(chunk)
+        digest = digest.hexdigest()
+        if digest in seen:
+            sys.exit(f"{seen[digest]} and {build} are the same binary (sha256 {digest[:16]}...): "
+                     "build each commit into a target folder of its own")
+        seen[digest] = build
 
 
 if __name__ == "__main__":
