@@ -58,11 +58,11 @@ def check_distinct(builds):
     for build in builds:
         if not os.path.isfile(build):
             sys.exit(f"{build}: no such file (a prism binary is expected)")
-        digest = hashlib.sha256()
+        hasher = hashlib.sha256()
         with open(build, "rb") as f:
             for chunk in iter(lambda: f.read(1 << 20), b""):
-                digest.update(chunk)
-        digest = digest.hexdigest()
+                hasher.update(chunk)
+        digest = hasher.hexdigest()
         if digest in seen:
             sys.exit(f"{seen[digest]} and {build} are the same binary (sha256 {digest[:16]}...): "
                      "build each commit into a target folder of its own")
