@@ -58,11 +58,8 @@ def check_distinct(builds):
     for build in builds:
         if not os.path.isfile(build):
             sys.exit(f"{build}: no such file (a prism binary is expected)")
-        hasher = hashlib.sha256()
         with open(build, "rb") as f:
-            for chunk in iter(lambda: f.read(1 << 20), b""):
-                hasher.update(chunk)
-        digest = hasher.hexdigest()
+            digest = hashlib.file_digest(f, "sha256").hexdigest()
         if digest in seen:
             sys.exit(f"{seen[digest]} and {build} are the same binary (sha256 {digest[:16]}...): "
                      "build each commit into a target folder of its own")
