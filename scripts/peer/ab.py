@@ -37,8 +37,7 @@ def main():
                     times.setdefault((row["model"], row["res"]), {}).setdefault(build, []).append(row["ms"])
                     if row.get("cpu_steal") is not None:
                         steal.setdefault(build, []).append(row["cpu_steal"])
-    names = [os.path.basename(b) for b in builds]
-    print("| row | " + " | ".join(names) + " | last / first (medians) | last / first (fastest) |")
+    print("| row | " + " | ".join(builds) + " | last / first (medians) | last / first (fastest) |")
     print("|---|" + "---:|" * (len(builds) + 2))
     for (model, res), runs in times.items():
         medians = [statistics.median(runs[b]) for b in builds]
@@ -46,10 +45,10 @@ def main():
         print(f"| {model} {res} | " + " | ".join(f"{m:.1f}" for m in medians)
               + f" | {medians[-1] / medians[0]:.2f}x | {fastest:.2f}x |")
     for (model, res), runs in times.items():
-        print(model, res, {os.path.basename(b): [round(t, 1) for t in runs[b]] for b in builds})
+        print(model, res, {b: [round(t, 1) for t in runs[b]] for b in builds})
     print("CPU steal (median of the rows): " + ", ".join(
-        f"{os.path.basename(b)} {100 * statistics.median(steal[b]):.1f}%" if b in steal
-        else f"{os.path.basename(b)} n/a" for b in builds))
+        f"{b} {100 * statistics.median(steal[b]):.1f}%" if b in steal
+        else f"{b} n/a" for b in builds))
 
 
 def check_distinct(builds):
